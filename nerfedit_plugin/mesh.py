@@ -10,6 +10,7 @@ import numpy as np
 
 from .errors import NerfEditError
 from .atomic import atomic_path
+from .samples import resolve_mesh_path
 
 
 @dataclass
@@ -81,14 +82,17 @@ class SurfaceMesh:
     # ---- files -------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SurfaceMesh":
-        """Read PLY/OBJ/OFF/GLB/STL keeping the file's vertex order (no merging, no reordering)."""
+        """Read PLY/OBJ/OFF/GLB/STL keeping the file's vertex order; ``sample:bunny`` names a shipped sample."""
         import trimesh
 
-        path = Path(path)
+        path = resolve_mesh_path(path)
         if not path.is_file():
             raise NerfEditError(f"{path}: mesh file not found")
         try:
-            loaded = trimesh.load(path, process=False, force="mesh")
+            try:  # keep the file's vertex order (OBJ otherwise splits/reorders vertices by texture coordinate)
+                loaded = trimesh.load(path, process=False, force="mesh", maintain_order=True)
+            except IndexError:  # trimesh cannot keep order for some textured OBJ files
+                loaded = trimesh.load(path, process=False, force="mesh")
         except Exception as exc:  # trimesh raises many types for corrupt files
             raise NerfEditError(f"{path}: cannot read mesh ({exc})") from exc
         if not hasattr(loaded, "faces") or len(loaded.faces) == 0:

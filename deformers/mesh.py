@@ -1,0 +1,54 @@
+"""The ``mesh`` deformer: the deformed mesh is given (edited in Blender or any tool keeping vertex order).
+
+Spec: ``{"deformed": "edited.ply" | "poses/*.obj" | ["a.ply", "b.ply"], "frames": n}``. A list or glob gives one
+frame per file (sorted); a single file with ``frames = n > 1`` is interpolated linearly from the rest pose.
+Every file must have the rest mesh's vertex count and faces, else a NerfEditError names the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.mesh import SurfaceMesh
+
+
+@dataclasses.dataclass
+class MeshConfig(DeformerConfig):
+    """Use deformed meshes made elsewhere (same vertex count and order as the rest mesh)."""
+
+    _target: type = dataclasses.field(default_factory=lambda: MeshDeformer)
+    check_faces: bool = True
+    """Require identical faces (connectivity), not only the same vertex count."""
+
+
+class MeshDeformer(Deformer):
+    """Reads the deformed vertex positions from mesh files."""
+
+    spec_keys = frozenset({"deformed"})
+    config: MeshConfig
+
+    def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
+        files = edit.paths("deformed")
+        if len(files) > 1 and edit.frames not in (1, len(files)):
+            raise NerfEditError(f"{edit.source}: frames: {edit.frames} frames but {len(files)} deformed meshes")
+        poses = []
+        for path in files:
+            mesh = SurfaceMesh.load(path)
+            if mesh.n_vertices != rest.n_vertices:
+                raise NerfEditError(f"{path}: {mesh.n_vertices} vertices, the rest mesh has {rest.n_vertices}")
+            if self.config.check_faces and not np.array_equal(mesh.faces, rest.faces):
+                raise NerfEditError(f"{path}: connectivity differs from the rest mesh (faces are not identical)")
+            poses.append(mesh.vertices)
+        if len(poses) == 1:
+            t = edit.times[:, None, None]
+            self._frames = (1 - t) * rest.vertices + t * poses[0]
+        else:
+            self._frames = np.stack(poses)
+
+    def deform(self) -> np.ndarray:
+        return self._frames.copy()

@@ -1,0 +1,94 @@
+"""Plugin discovery through ``importlib.metadata`` entry points.
+
+Each entry point names a config class (a dataclass subclass of the group's base config whose ``_target`` is a
+subclass of the group's base class). A plugin that fails to import or has the wrong shape is recorded in
+``Registry.skipped`` with the reason and never stops discovery.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from importlib import metadata
+
+from .deformer import Deformer, DeformerConfig
+from .errors import NerfEditError
+
+DEFORMERS = "nerfedit.deformers"
+
+#: group -> (base config class, base target class)
+GROUPS: dict[str, tuple[type, type]] = {DEFORMERS: (DeformerConfig, Deformer)}
+
+
+@dataclass(frozen=True)
+class Plugin:
+    group: str
+    name: str
+    target: str  # "module:attr" as written in the entry point
+    distribution: str
+    config_class: type
+
+
+@dataclass(frozen=True)
+class Skipped:
+    group: str
+    name: str
+    target: str
+    distribution: str
+    reason: str
+
+
+@dataclass
+class Registry:
+    plugins: dict[str, dict[str, Plugin]] = field(default_factory=dict)
+    skipped: list[Skipped] = field(default_factory=list)
+
+    def names(self, group: str) -> list[str]:
+        return sorted(self.plugins.get(group, {}))
+
+    def config_class(self, group: str, name: str) -> type:
+        """The config class registered as ``name``; unknown names raise a NerfEditError listing the choices."""
+        found = self.plugins.get(group, {})
+        if name in found:
+            return found[name].config_class
+        why = next((s.reason for s in self.skipped if s.group == group and s.name == name), None)
+        if why:
+            raise NerfEditError(f"plugin {name!r} ({group}) is installed but broken: {why}")
+        raise NerfEditError(f"unknown {group.split('.')[-1][:-1]} {name!r} (available: {', '.join(sorted(found)) or 'none'})")
+
+
+def _check_shape(obj: object, base_config: type, base_target: type) -> str | None:
+    """None if ``obj`` is a valid config class for the group, else the reason it is not."""
+    if not isinstance(obj, type) or not dataclasses.is_dataclass(obj):
+        return f"expected a config dataclass, got {obj!r}"
+    if not issubclass(obj, base_config):
+        return f"{obj.__name__} does not subclass {base_config.__module__}.{base_config.__name__}"
+    try:
+        target = obj()._target
+    except Exception as exc:  # a config that cannot be default-constructed is unusable from the CLI
+        return f"{obj.__name__}() failed: {exc!r}"
+    if not isinstance(target, type) or not issubclass(target, base_target):
+        return f"{obj.__name__}._target is {target!r}, not a subclass of {base_target.__name__}"
+    return None
+
+
+def discover(groups: dict[str, tuple[type, type]] | None = None) -> Registry:
+    """Load every entry point of the known groups; record the broken ones instead of raising."""
+    registry = Registry()
+    for group, (base_config, base_target) in (groups or GROUPS).items():
+        found = registry.plugins.setdefault(group, {})
+        for ep in metadata.entry_points(group=group):
+            dist = ep.dist.name if ep.dist is not None else "?"
+            try:
+                obj = ep.load()
+            except Exception as exc:  # any import-time failure of a third-party plugin must not be fatal
+                registry.skipped.append(Skipped(group, ep.name, ep.value, dist, f"import failed: {exc!r}"))
+                continue
+            reason = _check_shape(obj, base_config, base_target)
+            if reason is None and ep.name in found:
+                reason = f"name already registered by {found[ep.name].distribution} ({found[ep.name].target})"
+            if reason:
+                registry.skipped.append(Skipped(group, ep.name, ep.value, dist, reason))
+            else:
+                found[ep.name] = Plugin(group, ep.name, ep.value, dist, obj)
+    return registry

@@ -1,0 +1,139 @@
+"""Edit specs: selections, transforms, frame interpolation, and one clear error per malformed-spec class."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from nerfedit_plugin.editspec import load_edit_spec, parse_edit_spec
+from nerfedit_plugin.errors import NerfEditError
+
+GRID = np.stack(np.meshgrid(*[np.linspace(-1, 1, 5)] * 3, indexing="ij"), -1).reshape(-1, 3)
+
+
+def spec(handles, **extra):
+    return parse_edit_spec({"handles": handles, **extra}, source="e.json")
+
+
+def test_box_sphere_indices_select_expected_points():
+    box = spec([{"select": {"box": {"min": [0, -1, -1], "max": [1, 1, 1]}}, "fixed": True}])
+    idx, _ = box.handle_targets(GRID)
+    assert np.array_equal(idx, np.flatnonzero(GRID[:, 0] >= 0))
+    sphere = spec([{"select": {"sphere": {"center": [0, 0, 0], "radius": 0.6}}, "fixed": True}])
+    idx, _ = sphere.handle_targets(GRID)
+    assert np.array_equal(idx, np.flatnonzero(np.linalg.norm(GRID, axis=1) <= 0.6))
+    ind = spec([{"select": {"indices": [7, 3, 3]}, "fixed": True}])
+    assert np.array_equal(ind.handle_targets(GRID)[0], [3, 7])
+
+
+def test_fixed_handles_stay_and_transform_is_similarity_about_pivot():
+    s = spec(
+        [
+            {"select": {"box": {"min": [-1, -1, -1], "max": [-0.9, 1, 1]}}, "fixed": True},
+            {
+                "select": {"box": {"min": [0.9, -1, -1], "max": [1, 1, 1]}},
+                "transform": {
+                    "translate": [0, 0, 1],
+                    "rotate": {"axis": [0, 0, 2], "degrees": 90, "center": [1, 0, 0]},
+                    "scale": 2.0,
+                },
+            },
+        ]
+    )
+    idx, targets = s.handle_targets(GRID)
+    assert targets.shape == (1, len(idx), 3)
+    left = GRID[idx, 0] < 0
+    assert np.array_equal(targets[0, left], GRID[idx[left]])
+    rot = Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    expected = np.array([1, 0, 0]) + 2 * (GRID[idx[~left]] - [1, 0, 0]) @ rot.T + [0, 0, 1]
+    assert np.allclose(targets[0, ~left], expected)
+
+
+def test_frames_interpolate_from_rest_with_slerp():
+    s = spec([{"select": {"indices": [0]}, "transform": {"rotate": {"axis": [0, 0, 1], "degrees": 120, "center": [0, 0, 0]}}}], frames=3)
+    point = np.array([[1.0, 0.0, 0.0]])
+    _, targets = s.handle_targets(point)
+    assert np.allclose(targets[0, 0], point[0])  # frame 0 is the rest pose
+    angles = [math.degrees(math.atan2(t[0, 1], t[0, 0])) for t in targets]
+    assert np.allclose(angles, [0, 60, 120])
+    assert np.allclose(np.linalg.norm(targets[:, 0], axis=1), 1.0)  # slerp keeps the radius
+
+
+def test_pivot_defaults_to_selection_centroid():
+    s = spec([{"select": {"indices": [0, 1]}, "transform": {"scale": 3}}])
+    pts = np.array([[0.0, 0, 0], [2.0, 0, 0]])
+    _, targets = s.handle_targets(pts)
+    assert np.allclose(targets[0], [[-2, 0, 0], [4, 0, 0]])
+
+
+def test_later_handle_wins_on_overlap():
+    s = spec(
+        [
+            {"select": {"indices": [0, 1]}, "fixed": True},
+            {"select": {"indices": [1]}, "transform": {"translate": [1, 0, 0]}},
+        ]
+    )
+    idx, targets = s.handle_targets(np.zeros((3, 3)))
+    assert np.array_equal(idx, [0, 1]) and np.allclose(targets[0], [[0, 0, 0], [1, 0, 0]])
+
+
+BAD = [
+    ({"handles": [], "frames": 1}, "handles: expected a non-empty list"),
+    ({"handels": []}, "handels: unknown key"),
+    ({"handles": [{"select": {"box": {"min": [0, 0], "max": [1, 1, 1]}}, "fixed": True}]}, "handles[0].select.box.min: expected 3 numbers"),
+    ({"handles": [{"select": {"box": {"min": [0, 0, 0], "max": [1, 1, float("nan")]}}, "fixed": True}]}, "handles[0].select.box.max: contains NaN"),
+    ({"handles": [{"select": {"box": {"min": [1, 0, 0], "max": [0, 1, 1]}}, "fixed": True}]}, "handles[0].select.box: min exceeds max"),
+    ({"handles": [{"select": {"sphere": {"center": [0, 0, 0], "radius": -1}}, "fixed": True}]}, "handles[0].select.sphere.radius: must be > 0"),
+    ({"handles": [{"select": {"box": {}, "sphere": {}}, "fixed": True}]}, "handles[0].select: expected exactly one"),
+    ({"handles": [{"select": {"cone": {}}, "fixed": True}]}, "handles[0].select.cone: unknown key"),
+    ({"handles": [{"select": {"indices": [1.5]}, "fixed": True}]}, "handles[0].select.indices: expected a non-empty list of integer"),
+    ({"handles": [{"select": {"indices": [1]}}]}, "handles[0]: needs exactly one of"),
+    ({"handles": [{"select": {"indices": [1]}, "fixed": True, "transform": {"scale": 2}}]}, "handles[0]: needs exactly one of"),
+    ({"handles": [{"select": {"indices": [1]}, "transform": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}]}, "handles[0].transform.rotate.axis: is the zero vector"),
+    ({"handles": [{"select": {"indices": [1]}, "transform": {"rotate": {"axis": [0, 0, 1]}}}]}, "handles[0].transform.rotate.degrees: missing"),
+    ({"handles": [{"select": {"indices": [1]}, "transform": {"shear": 1}}]}, "handles[0].transform.shear: unknown key"),
+    ({"handles": [{"select": {"indices": [1]}, "transform": {"scale": 0}}]}, "handles[0].transform.scale: must be > 0"),
+    ({"handles": [{"select": {"indices": [1]}, "fixed": "yes"}]}, "handles[0].fixed: expected true or false"),
+    ({"handles": [{"select": {"indices": [1]}, "fixed": True}], "frames": 0}, "frames: expected an integer >= 1"),
+    ([1, 2], "expected a mapping"),
+]
+
+
+@pytest.mark.parametrize("data, message", BAD)
+def test_malformed_spec_names_key_and_problem(data, message):
+    with pytest.raises(NerfEditError) as err:
+        parse_edit_spec(data, source="e.json")
+    assert str(err.value).startswith("e.json: ") and message in str(err.value)
+
+
+def test_selection_errors_are_raised_against_the_points():
+    empty = spec([{"select": {"sphere": {"center": [9, 9, 9], "radius": 0.1}}, "fixed": True}])
+    with pytest.raises(NerfEditError, match=r"handles\[0\].select.sphere: selects no points"):
+        empty.handle_targets(GRID)
+    out_of_range = spec([{"select": {"indices": [0, 500]}, "fixed": True}])
+    with pytest.raises(NerfEditError, match=r"handles\[0\].select.indices: index 500 out of range for 125 points"):
+        out_of_range.handle_targets(GRID)
+
+
+def test_load_json_and_yaml_and_paths(tmp_path):
+    (tmp_path / "a.ply").write_text("x")
+    (tmp_path / "b.ply").write_text("x")
+    data = {"handles": [{"select": {"indices": [0]}, "fixed": True}], "deformed": "*.ply", "frames": 2}
+    (tmp_path / "e.json").write_text(json.dumps(data))
+    (tmp_path / "e.yaml").write_text("handles:\n  - select: {indices: [0]}\n    fixed: true\ndeformed: a.ply\n")
+    from_json = load_edit_spec(tmp_path / "e.json", {"handles", "deformed"})
+    assert from_json.frames == 2 and [p.name for p in from_json.paths("deformed")] == ["a.ply", "b.ply"]
+    from_yaml = load_edit_spec(tmp_path / "e.yaml", {"handles", "deformed"})
+    assert from_yaml.path("deformed") == (tmp_path / "a.ply").resolve()
+    with pytest.raises(NerfEditError, match="deformed: unknown key"):
+        load_edit_spec(tmp_path / "e.yaml")
+    (tmp_path / "bad.json").write_text("{oops")
+    with pytest.raises(NerfEditError, match="bad.json: cannot parse"):
+        load_edit_spec(tmp_path / "bad.json")
+    with pytest.raises(NerfEditError, match="missing.json: edit spec not found"):
+        load_edit_spec(tmp_path / "missing.json")
+    (tmp_path / "m.json").write_text(json.dumps({"deformed": "nope.ply"}))
+    with pytest.raises(NerfEditError, match="deformed: file not found"):
+        load_edit_spec(tmp_path / "m.json", {"deformed"}).path("deformed")
