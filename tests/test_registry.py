@@ -1,0 +1,86 @@
+"""Registry: built-ins are found through entry points; broken plugins are skipped with a reason, never fatal."""
+
+import sys
+import textwrap
+
+import pytest
+
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.registry import DEFORMERS, discover
+
+
+@pytest.fixture
+def fake_plugins(tmp_path, monkeypatch):
+    """Install a distribution with a good, a broken-import and a wrong-shape deformer entry point."""
+    (tmp_path / "fake_plugin.py").write_text(
+        textwrap.dedent(
+            """
+            import dataclasses
+            from nerfedit_plugin.deformer import Deformer, DeformerConfig
+
+            class Shift(Deformer):
+                spec_keys = frozenset()
+                def bind(self, rest, edit): self.rest = rest.vertices
+                def deform(self): return (self.rest + 1.0)[None]
+
+            @dataclasses.dataclass
+            class ShiftConfig(DeformerConfig):
+                _target: type = dataclasses.field(default_factory=lambda: Shift)
+
+            @dataclasses.dataclass
+            class NotADeformerConfig(DeformerConfig):
+                _target: type = dict
+
+            not_a_class = 42
+            """
+        )
+    )
+    dist = tmp_path / "fake_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: fake-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text(
+        "[nerfedit.deformers]\n"
+        "shift = fake_plugin:ShiftConfig\n"
+        "broken = fake_plugin_missing_module:Config\n"
+        "wrongtarget = fake_plugin:NotADeformerConfig\n"
+        "notaclass = fake_plugin:not_a_class\n"
+        "arap = fake_plugin:ShiftConfig\n"
+    )
+    monkeypatch.setattr(sys, "path", [*sys.path, str(tmp_path)])  # after the built-ins: they register first
+    yield
+    sys.modules.pop("fake_plugin", None)
+
+
+def test_builtin_deformers_are_registered():
+    registry = discover()
+    assert {"arap", "mesh"} <= set(registry.names(DEFORMERS))
+    assert registry.config_class(DEFORMERS, "mesh").__name__ == "MeshConfig"
+
+
+def test_broken_plugins_are_skipped_with_reasons(fake_plugins):
+    registry = discover()
+    assert "shift" in registry.names(DEFORMERS)
+    reasons = {s.name: s.reason for s in registry.skipped if s.distribution == "fake-plugin"}
+    assert "import failed" in reasons["broken"] and "fake_plugin_missing_module" in reasons["broken"]
+    assert "not a subclass of Deformer" in reasons["wrongtarget"]
+    assert "expected a config dataclass" in reasons["notaclass"]
+    assert "already registered" in reasons["arap"]  # a duplicate name never shadows the first registration
+    with pytest.raises(NerfEditError, match="installed but broken: import failed"):
+        registry.config_class(DEFORMERS, "broken")
+
+
+def test_unknown_plugin_lists_choices():
+    with pytest.raises(NerfEditError, match=r"unknown deformer 'nope' \(available: .*arap.*mesh"):
+        discover().config_class(DEFORMERS, "nope")
+
+
+def test_registered_plugin_works(fake_plugins):
+    import numpy as np
+
+    from nerfedit_plugin.editspec import parse_edit_spec
+    from nerfedit_plugin.mesh import SurfaceMesh
+
+    deformer = discover().config_class(DEFORMERS, "shift")().setup()
+    rest = SurfaceMesh(np.eye(3), np.array([[0, 1, 2]]))
+    deformer.bind(rest, parse_edit_spec({}, allowed_keys=()))
+    assert np.allclose(deformer.deform()[0], np.eye(3) + 1)
