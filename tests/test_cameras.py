@@ -1,0 +1,127 @@
+"""Cameras and rays: OpenGL convention, pixel-centre projection oracle, exact downscaling, poses on a sphere."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nerfedit_plugin.cameras import Cameras, generate_rays, look_at, sphere_poses
+
+
+def random_cameras(n=4, width=40, height=30, seed=0) -> Cameras:
+    g = torch.Generator().manual_seed(seed)
+    eyes = torch.randn(n, 3, generator=g) * 3
+    targets = torch.randn(n, 3, generator=g) * 0.3
+    fx = 30 + 10 * torch.rand(n, generator=g)
+    fy = 30 + 10 * torch.rand(n, generator=g)
+    cx = width / 2 + torch.randn(n, generator=g)
+    cy = height / 2 + torch.randn(n, generator=g)
+    return Cameras(look_at(eyes, targets), fx, fy, cx, cy, width, height)
+
+
+def test_principal_point_ray_points_down_minus_z_and_image_axes_follow_opengl():
+    cams = random_cameras()
+    for i in range(len(cams)):
+        c2w = cams.c2w[i]
+        principal = torch.stack([cams.cx[i], cams.cy[i]]) - 0.5  # pixel whose centre is the principal point
+        origin, direction = generate_rays(cams, i, principal[None])
+        assert torch.allclose(origin[0], c2w[:3, 3])
+        assert torch.allclose(direction[0], -c2w[:3, 2], atol=1e-6)
+        _, right = generate_rays(cams, i, (principal + torch.tensor([5.0, 0.0]))[None])
+        _, below = generate_rays(cams, i, (principal + torch.tensor([0.0, 5.0]))[None])
+        assert float(right[0] @ c2w[:3, 0]) > 0.1  # image +x (column) = camera +x
+        assert float(below[0] @ c2w[:3, 1]) < -0.1  # image +row = camera −y (OpenGL: +y up)
+
+
+def test_rays_pass_through_projected_points():
+    """Pinhole oracle: project world points with K [R|t], the ray through that pixel position hits the point."""
+    cams = random_cameras(seed=1)
+    g = torch.Generator().manual_seed(2)
+    for i in range(len(cams)):
+        c2w = cams.c2w[i].double()
+        cam_points = torch.cat([torch.rand(50, 2, generator=g) - 0.5, -1 - torch.rand(50, 1, generator=g)], 1)
+        world = (c2w[:3, :3] @ cam_points.double().T).T + c2w[:3, 3]
+        x = cams.fx[i] * cam_points[:, 0] / -cam_points[:, 2] + cams.cx[i]
+        y = -cams.fy[i] * cam_points[:, 1] / -cam_points[:, 2] + cams.cy[i]
+        origins, directions = generate_rays(cams, i, torch.stack([x, y], 1) - 0.5)
+        to_point = torch.nn.functional.normalize(world.float() - origins, dim=-1)
+        assert torch.allclose(directions, to_point, atol=1e-5)
+
+
+def test_ray_batch_modes_agree_and_directions_are_unit():
+    cams = random_cameras(n=3, width=7, height=5)
+    origins, directions = generate_rays(cams)
+    assert origins.shape == directions.shape == (3, 5, 7, 3)
+    assert torch.allclose(directions.norm(dim=-1), torch.ones(3, 5, 7))
+    one = generate_rays(cams, 1)
+    assert torch.equal(one[1], directions[1]) and torch.equal(one[0], origins[1])
+    subset = generate_rays(cams, torch.tensor([2, 0]))
+    assert torch.equal(subset[1], directions[[2, 0]])
+    idx = torch.tensor([0, 2, 1, 2])
+    pix = torch.tensor([[0, 0], [6, 4], [3, 2], [1, 3]])
+    per_ray = generate_rays(cams, idx, pix)
+    assert torch.allclose(per_ray[1], directions[idx, pix[:, 1], pix[:, 0]])
+    assert torch.equal(per_ray[0], origins[idx, pix[:, 1], pix[:, 0]])
+
+
+def test_downscale_halves_intrinsics_and_maps_pixel_centres_exactly():
+    cams = random_cameras(width=41, height=30)
+    half = cams.downscale(2)
+    assert (half.width, half.height) == (20, 15)
+    for name in ("fx", "fy", "cx", "cy"):
+        assert torch.allclose(getattr(half, name), getattr(cams, name) / 2)
+    # the centre of coarse pixel (i, j) is the centre of the 2x2 block (2i .. 2i+1): fine coordinate 2i + 0.5
+    coarse = torch.tensor([[0, 0], [19, 14], [7, 3]])
+    _, d_coarse = generate_rays(half, 2, coarse)
+    _, d_fine = generate_rays(cams, 2, 2 * coarse.float() + 0.5)
+    assert torch.allclose(d_coarse, d_fine, atol=1e-6)
+    back = cams.upscale(3).downscale(3)
+    assert (back.width, back.height) == (cams.width, cams.height)
+    assert torch.allclose(back.fx, cams.fx) and torch.allclose(back.cx, cams.cx)
+    with pytest.raises(ValueError):
+        cams.downscale(1.5)
+
+
+def test_look_at_is_a_proper_rotation_facing_the_target_even_at_the_pole():
+    eyes = torch.tensor([[2.0, 1.0, 0.5], [0.0, 0.0, 3.0], [0.0, 0.0, -3.0]])  # the last two: view along ±up
+    c2w = look_at(eyes, torch.zeros(3))
+    rot = c2w[:, :3, :3]
+    assert torch.isfinite(c2w).all()
+    assert torch.allclose(rot.transpose(1, 2) @ rot, torch.eye(3).expand(3, 3, 3), atol=1e-6)
+    assert torch.allclose(torch.linalg.det(rot), torch.ones(3))
+    assert torch.allclose(-rot[:, :, 2], torch.nn.functional.normalize(-eyes, dim=-1), atol=1e-6)
+    assert float(rot[0, 2, 1]) > 0  # camera +y has a positive world-z component (world up)
+
+
+@pytest.mark.parametrize("hemisphere", [False, True])
+def test_sphere_poses_spread_evenly_look_at_centre_and_follow_the_seed(hemisphere):
+    n, radius, center = 64, 2.0, torch.tensor([0.3, -0.2, 0.1])
+    poses = sphere_poses(n, radius, center.tolist(), hemisphere=hemisphere, seed=3)
+    eyes = poses[:, :3, 3]
+    assert torch.allclose((eyes - center).norm(dim=1), torch.full((n,), radius), atol=1e-5)
+    forward = -poses[:, :3, 2]
+    assert torch.allclose(forward, torch.nn.functional.normalize(center - eyes, dim=-1), atol=1e-5)
+    if hemisphere:
+        assert bool(((eyes - center)[:, 2] > 0).all())
+    # even spread: nearest-neighbour distance of a Fibonacci lattice ≈ sqrt(area / n); a random set gets far closer
+    area = (2 if hemisphere else 4) * math.pi * radius**2
+    dist = torch.cdist(eyes, eyes) + torch.eye(n) * 1e9
+    assert float(dist.min()) > 0.5 * math.sqrt(area / n)
+    assert torch.equal(poses, sphere_poses(n, radius, center.tolist(), hemisphere=hemisphere, seed=3))
+    assert not torch.allclose(poses, sphere_poses(n, radius, center.tolist(), hemisphere=hemisphere, seed=4))
+
+
+def test_from_fov_matches_blender_focal_length():
+    cams = Cameras.from_fov(sphere_poses(2, 3.0), 80, 60, 0.6911112070083618)
+    assert np.isclose(float(cams.fx[0]), 0.5 * 80 / math.tan(0.5 * 0.6911112070083618))
+    assert torch.equal(cams.fx, cams.fy) and float(cams.cx[0]) == 40 and float(cams.cy[0]) == 30
+    assert torch.allclose(cams.camera_angle_x, torch.full((2,), 0.6911112))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_rays_on_cuda_match_cpu():
+    cams = random_cameras()
+    o_cpu, d_cpu = generate_rays(cams)
+    o_gpu, d_gpu = generate_rays(cams.to("cuda"))
+    assert o_gpu.is_cuda and torch.allclose(d_gpu.cpu(), d_cpu, atol=1e-6) and torch.allclose(o_gpu.cpu(), o_cpu)
