@@ -31,7 +31,7 @@ from .deformer import Deformer
 from .editspec import EditSpec
 from .errors import NerfEditError
 from .mesh import SurfaceMesh
-from .proxy import TetProxy
+from .proxy import TetProxy, tet_signed_volumes
 
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
@@ -58,12 +58,6 @@ class FrameReport:
     degenerate_tets: int
     iterations: int
     seconds: float
-
-
-def signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """``((b − a) × (c − a)) · (d − a) / 6`` per tet."""
-    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
 
 
 def knn3_displacements(rest: np.ndarray, moved: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -103,7 +97,7 @@ class Lift:
         self.proxy, self.rest, self.method, self.config = proxy, rest, method, config
         self.deformer = deformer
         self.embedding = proxy.embedding_matrix()
-        self.rest_volumes = signed_volumes(proxy.vertices, proxy.tets)
+        self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
         if method == "direct" and (deformer is None or not deformer.supports_points()):
             name = type(deformer).__name__ if deformer is not None else "no deformer"
             raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
@@ -142,7 +136,7 @@ class Lift:
     def report(self, deformed: np.ndarray, surface: np.ndarray, iterations: int, seconds: float) -> FrameReport:
         scale = self.rest.bbox_diagonal
         residual = np.linalg.norm(self.embedding @ deformed - surface, axis=1) / scale
-        volumes = signed_volumes(deformed, self.proxy.tets)
+        volumes = tet_signed_volumes(deformed, self.proxy.tets)
         tiny = 1e-9 * np.abs(self.rest_volumes).mean()
         return FrameReport(
             residual_max=float(residual.max()),

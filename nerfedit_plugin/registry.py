@@ -13,11 +13,13 @@ from importlib import metadata
 
 from .deformer import Deformer, DeformerConfig
 from .errors import NerfEditError
+from .field import Field, FieldConfig
 
 DEFORMERS = "nerfedit.deformers"
+FIELDS = "nerfedit.fields"
 
 #: group -> (base config class, base target class)
-GROUPS: dict[str, tuple[type, type]] = {DEFORMERS: (DeformerConfig, Deformer)}
+GROUPS: dict[str, tuple[type, type]] = {DEFORMERS: (DeformerConfig, Deformer), FIELDS: (FieldConfig, Field)}
 
 
 @dataclass(frozen=True)

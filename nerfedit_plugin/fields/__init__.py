@@ -1,0 +1,1 @@
+"""Built-in field backends (nerf, neus, mesh), registered through the ``nerfedit.fields`` entry points."""
