@@ -1,0 +1,142 @@
+"""Automatic skinning weights by bone heat (Baran & Popović 2007, "Automatic rigging and animation of 3D characters").
+
+Each bone (segment ``head → tail``; a zero-length segment is a point) heats the surface; at equilibrium
+
+    (K + M H) w_j = M H p_j        for every bone j (one factorisation, one solve per bone),
+
+with K = −L the cotangent stiffness matrix, M the lumped (barycentric) mass matrix, H diagonal with
+``H_ii = k_i c / d_i²`` where ``d_i`` is the distance from vertex i to its nearest heating bone, and
+``p_j(i) = 1/k_i`` when bone j is one of the k_i bones heating vertex i (else 0). The bones heating a vertex are
+its ``nearest`` closest bones, plus any tied with the last of them (the paper: the nearest bone, ties shared).
+With ``visibility`` only bones whose closest point is visible from the vertex (the segment between them does not
+cross the surface; Open3D ray tests) may heat it; a vertex seeing no bone gets H_ii = 0 and its weights by
+diffusion alone. A connected component seeing no bone at all falls back to plain nearest bones.
+Since K·1 = 0, the weights of each vertex sum to 1; they lie in [0, 1] up to the round-off of negative cot weights
+(clipped, rows renormalised).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from nerfedit_plugin.arap import ELEMENT_EDGES, cotangent_weights
+
+#: relative distance within which bones count as equidistant from a vertex
+TIE_TOLERANCE = 1e-6
+#: distances are clamped to this fraction of the bounding-box diagonal (a vertex on a bone)
+MIN_DISTANCE = 1e-4
+
+
+def cotangent_stiffness(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """K = −L: ``K_ij = −½ Σ cot(opposite angles)`` off the diagonal, rows summing to 0 (PSD); no stored zeros.
+
+    Assembled from the core's per-triangle cotangent weights (0 on degenerate triangles).
+    """
+    pairs = ELEMENT_EDGES[3]
+    weights = cotangent_weights(vertices, faces).ravel()
+    ii, jj = faces[:, pairs[:, 0]].ravel(), faces[:, pairs[:, 1]].ravel()
+    n = len(vertices)
+    off = sp.coo_matrix((-weights, (ii, jj)), shape=(n, n))
+    off = (off + off.T).tocsr()
+    stiffness = (off - sp.diags(np.asarray(off.sum(1)).ravel())).tocsr()
+    stiffness.eliminate_zeros()
+    return stiffness
+
+
+def lumped_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Barycentric lumped mass: a third of the area of every incident triangle, ``(V,)``."""
+    area = 0.5 * np.linalg.norm(
+        np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1
+    )
+    return np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
+
+
+def closest_on_segments(points: np.ndarray, heads: np.ndarray, tails: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points ``(N,J,3)`` on each segment and their distances ``(N,J)``."""
+    axis = tails - heads
+    length2 = np.sum(axis * axis, axis=1)
+    rel = points[:, None, :] - heads[None]
+    s = np.divide(np.einsum("njk,jk->nj", rel, axis), length2, out=np.zeros((len(points), len(heads))), where=length2 > 0)
+    closest = heads[None] + np.clip(s, 0.0, 1.0)[..., None] * axis[None]
+    return closest, np.linalg.norm(points[:, None, :] - closest, axis=2)
+
+
+def occluded(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Whether the segment ``origin → target`` crosses the mesh, ignoring a short stretch at both ends ``(N,)``."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    gap = 1e-4 * float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    delta = targets - origins
+    length = np.linalg.norm(delta, axis=1, keepdims=True)
+    unit = np.divide(delta, length, out=np.zeros_like(delta), where=length > 0)
+    start, end = origins + gap * unit, targets - gap * unit
+    short = length[:, 0] <= 2 * gap
+    rays = np.concatenate([start, end - start], axis=1).astype(np.float32)
+    hit = scene.test_occlusions(o3d.core.Tensor(rays), tnear=0.0, tfar=1.0).numpy()
+    return hit & ~short
+
+
+def heat_sources(dist: np.ndarray, allowed: np.ndarray, nearest: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per vertex, ``p (V,J)`` (1/k on each of its k heating bones) and the distance to the nearest of them.
+
+    Only ``allowed`` bones may heat; a vertex with none gets a zero row and distance ``inf``.
+    """
+    masked = np.where(allowed, dist, np.inf)
+    kth = np.sort(masked, axis=1)[:, min(nearest, dist.shape[1]) - 1 : min(nearest, dist.shape[1])]
+    heating = allowed & (masked <= kth * (1.0 + TIE_TOLERANCE))
+    counts = heating.sum(1, keepdims=True)
+    p = np.divide(heating, counts, out=np.zeros(dist.shape), where=counts > 0)
+    return p, masked.min(1)
+
+
+def bone_heat_weights(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    heads: np.ndarray,
+    tails: np.ndarray,
+    *,
+    nearest: int = 1,
+    visibility: bool = True,
+    strength: float = 1.0,
+) -> np.ndarray:
+    """Skinning weights ``(V,J)`` of the bones ``heads[j] → tails[j]`` on the triangle mesh; rows sum to 1."""
+    from cholespy import CholeskySolverD, MatrixType
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    heads, tails = np.asarray(heads, dtype=np.float64), np.asarray(tails, dtype=np.float64)
+    n = len(vertices)
+    diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+
+    closest, dist = closest_on_segments(vertices, heads, tails)
+    allowed = np.ones(dist.shape, dtype=bool)
+    if visibility and len(faces):
+        origins = np.repeat(vertices, len(heads), axis=0)
+        allowed = ~occluded(vertices, faces, origins, closest.reshape(-1, 3)).reshape(dist.shape)
+    p, d = heat_sources(dist, allowed, nearest)
+
+    stiffness = cotangent_stiffness(vertices, faces)
+    _, component = connected_components(stiffness, directed=False)
+    blind = ~np.isin(component, component[np.isfinite(d)])  # components no bone can see: plain nearest bones
+    if blind.any():
+        p[blind], d[blind] = heat_sources(dist[blind], np.ones_like(allowed[blind]), nearest)
+
+    mass = lumped_mass(vertices, faces)
+    mass[mass <= 0] = mass[mass > 0].mean() if (mass > 0).any() else 1.0  # vertices in no (non-degenerate) face
+    counts = np.count_nonzero(p, axis=1)
+    heat = np.zeros(n)
+    seen = np.isfinite(d)
+    heat[seen] = counts[seen] * strength / np.maximum(d[seen], MIN_DISTANCE * diag) ** 2
+    system = (stiffness + sp.diags(mass * heat)).tocoo()
+    solver = CholeskySolverD(
+        n, system.row.astype(np.int32), system.col.astype(np.int32), np.ascontiguousarray(system.data), MatrixType.COO
+    )
+    rhs = np.ascontiguousarray((mass * heat)[:, None] * p)
+    weights = np.zeros_like(rhs)
+    solver.solve(rhs, weights)
+    weights = np.clip(weights, 0.0, None)
+    return weights / weights.sum(1, keepdims=True)

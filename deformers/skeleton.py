@@ -1,0 +1,375 @@
+"""The ``skeleton`` deformer: skin the rest mesh to a skeleton and pose it (dual-quaternion or linear blend skinning).
+
+Spec: ``{"skeleton": "skeleton.json" | "walk.bvh", "pose": {"<joint>": {"rotate": {"axis": [x,y,z], "degrees": d},
+"translate": [x,y,z]}}, "weights": "weights.npy", "frames": n}`` (``pose`` and ``weights`` optional).
+
+- Skeleton JSON: ``{"joints": [{"name": "root", "parent": null, "head": [x,y,z], "tail": [x,y,z]}, ...]}``, in the
+  rest mesh's coordinates. Each joint is one bone, the segment head → tail; ``tail`` defaults to the mean head of
+  the joint's children, and a leaf without a tail is a point bone at its head.
+- A BVH file gives the joints (rest pose = all channels zero; ``End Site`` offsets are leaf tails) and a motion.
+- Pose: each listed joint rotates about its head (axis in the rest / world frame) and then translates; the local
+  maps compose down the hierarchy (forward kinematics), so a joint carries its descendants.
+  ``frames = n > 1`` interpolates from the rest pose to the pose (slerp from the identity).
+  With a BVH skeleton and no pose the clip is the animation: ``frames = 1`` (the default) plays every BVH frame,
+  ``n > 1`` resamples the clip to n evenly spaced frames (slerp); with a pose the BVH file is only the skeleton.
+- Weights: ``weights.npy (V, joints)`` (columns in file joint order; rows are renormalised to sum 1), else
+  automatic bone-heat weights (:mod:`deformers.heat_weights`).
+- :meth:`SkeletonDeformer.deform_points` gives a point off the surface (a tet-proxy vertex) the weights of its
+  nearest surface point (barycentric interpolation on the closest triangle), then skins it like a vertex.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from nerfedit_plugin.atomic import atomic_path
+from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.mesh import SurfaceMesh
+
+from .bvh import BvhClip, parse_bvh
+from .heat_weights import bone_heat_weights
+from .skinning import Binding, normalize_weights, skin
+
+
+def _vector(value: Any, source: str, key: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (3,) or isinstance(value, str):
+        raise NerfEditError(f"{source}: {key}: expected 3 numbers, got {value!r}")
+    if not np.isfinite(arr).all():
+        raise NerfEditError(f"{source}: {key}: contains NaN or Inf")
+    return arr
+
+
+def _mapping(value: Any, allowed: set[str], source: str, key: str) -> dict:
+    if not isinstance(value, dict):
+        raise NerfEditError(f"{source}: {key}: expected a mapping, got {type(value).__name__}")
+    for name in value:
+        if name not in allowed:
+            raise NerfEditError(f"{source}: {key}.{name}: unknown key (expected one of {sorted(allowed)})")
+    return value
+
+
+def closest_point_barycentrics(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates ``(M,3)`` of the closest point to ``p`` on triangle ``abc``, in float64.
+
+    Ericson, *Real-Time Collision Detection* §5.1.5 (vertex, edge and face Voronoi regions), so a point on a vertex
+    gets exactly that vertex's coordinates. Zero-area triangles give their nearest corner.
+    """
+    ab, ac = b - a, c - a
+    d1, d2 = np.sum(ab * (p - a), 1), np.sum(ac * (p - a), 1)
+    d3, d4 = np.sum(ab * (p - b), 1), np.sum(ac * (p - b), 1)
+    d5, d6 = np.sum(ab * (p - c), 1), np.sum(ac * (p - c), 1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    zero, one = np.zeros(len(p)), np.ones(len(p))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v, w = vb / (va + vb + vc), vc / (va + vb + vc)
+        s_ab, s_ac = d1 / (d1 - d3), d2 / (d2 - d6)
+        s_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out = np.stack([1.0 - v - w, v, w], axis=1)  # face region; later regions take priority
+        regions = [
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), (zero, 1 - s_bc, s_bc)),  # edge BC
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), (1 - s_ac, zero, s_ac)),  # edge AC
+            ((d6 >= 0) & (d5 <= d6), (zero, zero, one)),  # vertex C
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), (1 - s_ab, s_ab, zero)),  # edge AB
+            ((d3 >= 0) & (d4 <= d3), (zero, one, zero)),  # vertex B
+            ((d1 <= 0) & (d2 <= 0), (one, zero, zero)),  # vertex A
+        ]
+        for mask, value in regions:
+            out[mask] = np.stack(value, axis=1)[mask]
+    bad = ~np.isfinite(out).all(1)
+    if bad.any():
+        corner = np.argmin(np.stack([np.sum((p - q) ** 2, 1) for q in (a, b, c)], 1)[bad], 1)
+        out[bad] = np.eye(3)[corner]
+    return np.clip(out, 0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """Joints (one bone each, ``heads[j] → tails[j]``) in rest space; ``parents[j] = -1`` for roots."""
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    heads: np.ndarray
+    tails: np.ndarray
+    order: tuple[int, ...]
+    """Joint indices with every parent before its children."""
+    source: str
+
+    @classmethod
+    def build(cls, names: list[str], parents: list[int], heads: np.ndarray, tails: np.ndarray, source: str) -> "Skeleton":
+        """Validate names and hierarchy; NaN rows of ``tails`` get the default (children's mean head, else head)."""
+        seen: dict[str, int] = {}
+        for j, name in enumerate(names):
+            if name in seen:
+                raise NerfEditError(f"{source}: joints[{j}]: duplicate joint name {name!r} (also joints[{seen[name]}])")
+            seen[name] = j
+        parents_arr = np.asarray(parents, dtype=np.int64)
+        children: list[list[int]] = [[] for _ in names]
+        for j, parent in enumerate(parents_arr):
+            if parent >= 0:
+                children[parent].append(j)
+        order, stack = [], [j for j, parent in enumerate(parents_arr) if parent < 0][::-1]
+        while stack:
+            j = stack.pop()
+            order.append(j)
+            stack.extend(children[j][::-1])
+        if len(order) < len(names):
+            placed = set(order)
+            loop = [next(k for k in range(len(names)) if k not in placed)]
+            while parents_arr[loop[-1]] not in loop:
+                loop.append(int(parents_arr[loop[-1]]))
+            cycle = loop[loop.index(int(parents_arr[loop[-1]])) :]
+            path = " → ".join(names[k] for k in cycle + [cycle[0]])
+            raise NerfEditError(f"{source}: joints: parent cycle {path} (the hierarchy must be a tree)")
+        tails = np.array(tails, dtype=np.float64)
+        for j in range(len(names)):
+            if np.isnan(tails[j]).any():
+                tails[j] = heads[children[j]].mean(0) if children[j] else heads[j]
+        return cls(tuple(names), parents_arr, np.asarray(heads, dtype=np.float64), tails, tuple(order), source)
+
+    @classmethod
+    def from_json(cls, path: Path) -> "Skeleton":
+        source = str(path)
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise NerfEditError(f"{source}: cannot parse skeleton JSON ({exc})".replace("\n", " ")) from exc
+        _mapping(data, {"joints"}, source, "skeleton")
+        joints = data.get("joints")
+        if not isinstance(joints, list) or not joints:
+            raise NerfEditError(f"{source}: joints: expected a non-empty list of joints")
+        names, parent_names, heads, tails = [], [], [], []
+        for j, joint in enumerate(joints):
+            key = f"joints[{j}]"
+            _mapping(joint, {"name", "parent", "head", "tail"}, source, key)
+            for required in ("name", "head"):
+                if required not in joint:
+                    raise NerfEditError(f"{source}: {key}.{required}: missing")
+            if not isinstance(joint["name"], str) or not joint["name"]:
+                raise NerfEditError(f"{source}: {key}.name: expected a non-empty string, got {joint['name']!r}")
+            parent = joint.get("parent")
+            if parent is not None and not isinstance(parent, str):
+                raise NerfEditError(f"{source}: {key}.parent: expected a joint name or null, got {parent!r}")
+            names.append(joint["name"])
+            parent_names.append(parent)
+            heads.append(_vector(joint["head"], source, f"{key}.head"))
+            tails.append(_vector(joint["tail"], source, f"{key}.tail") if "tail" in joint else np.full(3, np.nan))
+        index = {name: j for j, name in enumerate(names)}
+        parents = []
+        for j, parent in enumerate(parent_names):
+            if parent is not None and parent not in index:
+                raise NerfEditError(f"{source}: joints[{j}].parent: unknown joint {parent!r}")
+            parents.append(-1 if parent is None else index[parent])
+        return cls.build(names, parents, np.asarray(heads), np.asarray(tails), source)
+
+    @classmethod
+    def from_bvh(cls, clip: BvhClip) -> "Skeleton":
+        heads = clip.heads
+        return cls.build(list(clip.names), list(clip.parents), heads, heads + clip.end_sites, clip.source)
+
+    def forward_kinematics(self, rot: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bone maps ``x ↦ R x + t`` (``(F,J,3,3)``, ``(F,J,3)``) from local rotations about the heads + translations.
+
+        Local map of joint j: ``L_j(x) = h_j + R_j (x − h_j) + t_j``; global ``G_j = G_parent ∘ L_j``.
+        """
+        glob_rot, glob_trans = np.empty_like(rot), np.empty_like(trans)
+        for j in self.order:
+            head = self.heads[j]
+            local_trans = head - rot[:, j] @ head + trans[:, j]
+            parent = self.parents[j]
+            if parent < 0:
+                glob_rot[:, j], glob_trans[:, j] = rot[:, j], local_trans
+            else:
+                glob_rot[:, j] = glob_rot[:, parent] @ rot[:, j]
+                glob_trans[:, j] = np.einsum("fik,fk->fi", glob_rot[:, parent], local_trans) + glob_trans[:, parent]
+        return glob_rot, glob_trans
+
+    def parse_pose(self, pose: Any, source: str) -> tuple[np.ndarray, np.ndarray]:
+        """Per-joint rotation vectors and translations ``(J,3)`` from a spec's ``pose`` mapping."""
+        if not isinstance(pose, dict):
+            raise NerfEditError(f"{source}: pose: expected a mapping of joint names, got {type(pose).__name__}")
+        rotvec, trans = np.zeros((len(self.names), 3)), np.zeros((len(self.names), 3))
+        for name, item in pose.items():
+            key = f"pose.{name}"
+            if name not in self.names:
+                raise NerfEditError(f"{source}: {key}: unknown joint (the skeleton {self.source} has {list(self.names)})")
+            j = self.names.index(name)
+            _mapping(item, {"rotate", "translate"}, source, key)
+            if not item:
+                raise NerfEditError(f"{source}: {key}: empty transform (give rotate and/or translate)")
+            if "translate" in item:
+                trans[j] = _vector(item["translate"], source, f"{key}.translate")
+            if "rotate" in item:
+                rot = _mapping(item["rotate"], {"axis", "degrees"}, source, f"{key}.rotate")
+                for required in ("axis", "degrees"):
+                    if required not in rot:
+                        raise NerfEditError(f"{source}: {key}.rotate.{required}: missing")
+                axis = _vector(rot["axis"], source, f"{key}.rotate.axis")
+                degrees = rot["degrees"]
+                if isinstance(degrees, bool) or not isinstance(degrees, (int, float)) or not math.isfinite(degrees):
+                    raise NerfEditError(f"{source}: {key}.rotate.degrees: expected a finite number, got {degrees!r}")
+                if not np.linalg.norm(axis) > 0:
+                    raise NerfEditError(f"{source}: {key}.rotate.axis: is the zero vector")
+                rotvec[j] = axis / np.linalg.norm(axis) * math.radians(degrees)
+        return rotvec, trans
+
+
+def load_skeleton(path: Path) -> tuple[Skeleton, BvhClip | None]:
+    """A skeleton from ``.json`` or ``.bvh`` (then also its clip)."""
+    suffix = path.suffix.lower()
+    if suffix == ".bvh":
+        clip = parse_bvh(path)
+        return Skeleton.from_bvh(clip), clip
+    if suffix == ".json":
+        return Skeleton.from_json(path), None
+    raise NerfEditError(f"{path}: unknown skeleton format {suffix!r} (expected .json or .bvh)")
+
+
+@dataclasses.dataclass
+class SkeletonConfig(DeformerConfig):
+    """Pose a skeleton (JSON joints or BVH) and skin the mesh to it, with automatic bone-heat weights."""
+
+    _target: type = dataclasses.field(default_factory=lambda: SkeletonDeformer)
+    method: Literal["dqs", "lbs"] = "dqs"
+    """Skinning: dual quaternions (rigid blends, twists keep volume) or linear blend (collapses on twists)."""
+    heat_bones: int = 1
+    """Bones heating each vertex in the bone-heat solve: its k nearest (visible) ones, ties included (paper: 1)."""
+    visibility: bool = True
+    """Only bones visible from a vertex (the segment to the bone stays inside the mesh) heat it (Open3D rays)."""
+    heat_strength: float = 1.0
+    """c in H_ii = k c / d_i²: larger keeps weights closer to the nearest-bone assignment (paper: 1)."""
+    weight_threshold: float = 1e-3
+    """Weights below this are dropped (never a vertex's largest) and rows renormalised to sum 1."""
+
+
+class SkeletonDeformer(Deformer):
+    """Skeleton skinning; defined in space, so it also maps arbitrary points (``deform_points``)."""
+
+    spec_keys = frozenset({"skeleton", "pose", "weights"})
+    config: SkeletonConfig
+
+    def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
+        cfg = self.config
+        if cfg.heat_bones < 1:
+            raise NerfEditError(f"skeleton config: heat_bones must be >= 1, got {cfg.heat_bones}")
+        if cfg.heat_strength <= 0:
+            raise NerfEditError(f"skeleton config: heat_strength must be > 0, got {cfg.heat_strength}")
+        if not 0 <= cfg.weight_threshold < 1:
+            raise NerfEditError(f"skeleton config: weight_threshold must be in [0, 1), got {cfg.weight_threshold}")
+        skeleton, clip = load_skeleton(edit.path("skeleton"))
+        local_rot, local_trans = self._local_transforms(skeleton, clip, edit)
+        if "weights" in edit.extra:
+            weights = self._read_weights(edit.path("weights"), rest, skeleton)
+        else:
+            weights = bone_heat_weights(
+                rest.vertices,
+                rest.faces,
+                skeleton.heads,
+                skeleton.tails,
+                nearest=cfg.heat_bones,
+                visibility=cfg.visibility,
+                strength=cfg.heat_strength,
+            )
+        self.skeleton, self.rest = skeleton, rest
+        self.binding = Binding.create(rest.vertices, normalize_weights(weights, cfg.weight_threshold))
+        self.rot, self.trans = skeleton.forward_kinematics(local_rot, local_trans)
+        self._scene = None
+        self._cached: tuple[np.ndarray, Binding] | None = None
+
+    @classmethod
+    def identity_edit(cls, edit: dict, rest: SurfaceMesh) -> dict | None:
+        """Conformance-kit hook: ``edit`` with every posed joint given a zero translation (None without a pose)."""
+        if not isinstance(edit.get("pose"), dict):
+            return None
+        return {**edit, "pose": {name: {"translate": [0.0, 0.0, 0.0]} for name in edit["pose"]}}
+
+    @staticmethod
+    def _local_transforms(skeleton: Skeleton, clip: BvhClip | None, edit: EditSpec) -> tuple[np.ndarray, np.ndarray]:
+        if "pose" in edit.extra:
+            rotvec, trans = skeleton.parse_pose(edit.extra["pose"], edit.source)
+            t = edit.times[:, None, None]
+            rot = Rotation.from_rotvec((t * rotvec).reshape(-1, 3)).as_matrix().reshape(len(t), -1, 3, 3)
+            return rot, t * trans
+        if clip is None:
+            raise NerfEditError(f"{edit.source}: pose: missing (a JSON skeleton needs a pose)")
+        if clip.n_frames == 0:
+            raise NerfEditError(f"{edit.source}: pose: missing, and {clip.source} has no motion frames")
+        return clip.local_transforms(None if edit.frames == 1 else edit.frames)
+
+    @staticmethod
+    def _read_weights(path: Path, rest: SurfaceMesh, skeleton: Skeleton) -> np.ndarray:
+        try:
+            weights = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise NerfEditError(f"{path}: cannot read weights ({exc})") from exc
+        expected = (rest.n_vertices, len(skeleton.names))
+        if weights.shape != expected:
+            raise NerfEditError(
+                f"{path}: weights shape {weights.shape}, expected {expected} (mesh vertices × joints of {skeleton.source})"
+            )
+        if not np.issubdtype(weights.dtype, np.number) or not np.isfinite(weights).all():
+            raise NerfEditError(f"{path}: weights must be finite numbers")
+        if (weights < 0).any():
+            raise NerfEditError(f"{path}: negative weight at vertex {int(np.argwhere(weights < 0)[0, 0])}")
+        empty = np.flatnonzero(weights.sum(1) <= 0)
+        if empty.size:
+            raise NerfEditError(f"{path}: vertex {int(empty[0])} has all-zero weights")
+        return weights.astype(np.float64)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.rot)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Skinning weights of the rest vertices ``(V, joints)``, rows summing to 1."""
+        return self.binding.weights
+
+    def deform(self) -> np.ndarray:
+        return np.stack([self._skin(self.binding, f) for f in range(self.n_frames)])
+
+    def deform_points(self, points: np.ndarray, frame: int) -> np.ndarray:
+        points = np.asarray(points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"points: expected shape (M, 3), got {points.shape}")
+        if not 0 <= frame < self.n_frames:
+            raise IndexError(f"frame {frame} out of range for {self.n_frames} frames")
+        if self._cached is None or not np.array_equal(self._cached[0], points):
+            self._cached = (points.copy(), Binding.create(points, self.point_weights(points)))
+        return self._skin(self._cached[1], frame)
+
+    def point_weights(self, points: np.ndarray) -> np.ndarray:
+        """Weights of arbitrary points: the vertex weights interpolated at the nearest surface point ``(M,J)``."""
+        import open3d as o3d
+
+        if self._scene is None:
+            self._scene = o3d.t.geometry.RaycastingScene()
+            self._scene.add_triangles(
+                o3d.core.Tensor(self.rest.vertices.astype(np.float32)), o3d.core.Tensor(self.rest.faces.astype(np.uint32))
+            )
+        found = self._scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+        tri = self.rest.faces[found["primitive_ids"].numpy().astype(np.int64)]
+        corners = self.rest.vertices[tri]
+        bary = closest_point_barycentrics(points, corners[:, 0], corners[:, 1], corners[:, 2])
+        return np.einsum("mk,mkj->mj", bary, self.weights[tri])
+
+    def _skin(self, binding: Binding, frame: int) -> np.ndarray:
+        return skin(binding, self.rot[frame], self.trans[frame], self.config.method)
+
+    def write_artifacts(self, folder: Path) -> None:
+        """Save the skinning weights used (``skin_weights.npy``, V × joints) so they can be edited and reused."""
+        with atomic_path(Path(folder) / "skin_weights.npy") as tmp:
+            np.save(tmp, self.weights)

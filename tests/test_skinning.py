@@ -1,0 +1,111 @@
+"""LBS and DQS: identity, exact rigid motion, libigl's LBS as an oracle, DQS sign invariance, the candy wrapper."""
+
+import igl
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from deformers.skinning import Binding, dqs, dual_quaternions, lbs, normalize_weights, skin
+
+RNG = np.random.default_rng(7)
+POINTS = RNG.uniform(-1, 1, (300, 3))
+WEIGHTS = normalize_weights(RNG.random((300, 5)) ** 4)
+
+
+def random_bones(n, seed=0):
+    rot = Rotation.random(n, random_state=seed).as_matrix()
+    return rot, np.random.default_rng(seed).normal(size=(n, 3))
+
+
+def cylinder_points(rings=41, sides=16, radius=0.25):
+    """Rings along z ∈ [-1, 1] (one exactly at z = 0)."""
+    z = np.linspace(-1, 1, rings)
+    a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    return np.column_stack([np.tile(radius * np.cos(a), rings), np.tile(radius * np.sin(a), rings), np.repeat(z, sides)])
+
+
+@pytest.mark.parametrize("method", ["dqs", "lbs"])
+def test_identity_bones_give_identity(method):
+    out = skin(Binding.create(POINTS, WEIGHTS), np.tile(np.eye(3), (5, 1, 1)), np.zeros((5, 3)), method)
+    assert np.abs(out - POINTS).max() < 1e-14
+
+
+@pytest.mark.parametrize("method", ["dqs", "lbs"])
+def test_shared_rigid_transform_moves_points_rigidly(method):
+    rot, trans = random_bones(1, seed=3)
+    out = skin(Binding.create(POINTS, WEIGHTS), np.repeat(rot, 5, 0), np.repeat(trans, 5, 0), method)
+    assert np.abs(out - (POINTS @ rot[0].T + trans[0])).max() < 1e-12
+
+
+def test_one_hot_weights_apply_each_bone_exactly():
+    rot, trans = random_bones(5, seed=4)
+    owner = RNG.integers(0, 5, len(POINTS))
+    binding = Binding.create(POINTS, np.eye(5)[owner])
+    expected = np.einsum("nij,nj->ni", rot[owner], POINTS) + trans[owner]
+    assert np.abs(dqs(binding, dual_quaternions(rot, trans)) - expected).max() < 1e-12
+    assert np.abs(lbs(binding, rot, trans) - expected).max() < 1e-12
+
+
+def test_lbs_matches_libigl_lbs_matrix():
+    rot, trans = random_bones(5, seed=5)
+    # libigl: V' = M T, T stacks the transposed 3×4 matrices [R | t] of the bones.
+    stacked = np.concatenate([np.concatenate([r.T, t[None]], 0) for r, t in zip(rot, trans)], 0)
+    expected = igl.lbs_matrix(POINTS, WEIGHTS) @ np.ascontiguousarray(stacked)
+    assert np.abs(lbs(Binding.create(POINTS, WEIGHTS), rot, trans) - expected).max() < 1e-12
+
+
+def test_dqs_is_sign_invariant():
+    rot, trans = random_bones(5, seed=6)
+    dq = dual_quaternions(rot, trans)
+    assert (dq[:, :4] @ dq[:, :4].T < 0).any()  # some bones start in opposite hemispheres
+    binding = Binding.create(POINTS, WEIGHTS)
+    base = dqs(binding, dq)
+    for j in range(5):
+        flipped = dq.copy()
+        flipped[j] *= -1
+        assert np.abs(dqs(binding, flipped) - base).max() < 1e-12
+    assert np.abs(dqs(binding, -dq) - base).max() < 1e-12
+
+
+def test_dqs_blend_is_rigid_per_point():
+    """Every point's blended dual quaternion is a rigid map: distances between a point's two images are kept."""
+    rot, trans = random_bones(5, seed=8)
+    dq = dual_quaternions(rot, trans)
+    offset = np.array([1e-3, -2e-3, 0.5e-3])
+    a = dqs(Binding.create(POINTS, WEIGHTS), dq)
+    b = dqs(Binding.create(POINTS + offset, WEIGHTS), dq)  # same weights, so the same rigid map per point
+    assert np.abs(np.linalg.norm(a - b, axis=1) - np.linalg.norm(offset)).max() < 1e-12
+
+
+def test_candy_wrapper_twist():
+    """A 180° twist of the upper bone: DQS keeps every ring's radius, LBS collapses the middle ring to the axis."""
+    points = cylinder_points()
+    w1 = np.clip(points[:, 2] + 0.5, 0.0, 1.0)  # 0 below z=-0.5, 1 above z=0.5, 1/2 at z=0
+    binding = Binding.create(points, np.column_stack([1 - w1, w1]))
+    rot = np.stack([np.eye(3), Rotation.from_rotvec([0, 0, np.pi]).as_matrix()])
+    trans = np.zeros((2, 3))
+    radius = lambda x: np.linalg.norm(x[:, :2], axis=1)  # noqa: E731
+    middle = np.abs(points[:, 2]) < 1e-12
+    assert middle.sum() == 16
+    out_dqs = skin(binding, rot, trans, "dqs")
+    assert np.abs(radius(out_dqs) - 0.25).max() < 1e-12
+    assert np.abs(out_dqs[:, 2] - points[:, 2]).max() < 1e-12
+    out_lbs = skin(binding, rot, trans, "lbs")
+    assert radius(out_lbs)[middle].max() < 1e-12
+    assert radius(out_lbs)[~middle].min() > 0
+
+
+def test_normalize_weights_threshold_keeps_the_largest_and_sums_to_one():
+    w = np.array([[0.5, 0.004, 0.496], [0.001, 0.0005, 0.0002], [-0.1, 1.0, 0.2]])
+    out = normalize_weights(w, threshold=0.01)
+    assert np.allclose(out.sum(1), 1.0)
+    assert out[0, 1] == 0 and out[0, 0] > 0.5
+    assert np.array_equal(out[1], [1.0, 0.0, 0.0])  # all below threshold: the largest survives
+    assert out[2, 0] == 0 and np.isclose(out[2, 1], 1 / 1.2)
+
+
+def test_binding_groups_points_by_dominant_bone():
+    binding = Binding.create(POINTS, WEIGHTS)
+    assert np.array_equal(np.sort(np.concatenate(binding.dominated)), np.arange(len(POINTS)))
+    for k, rows in enumerate(binding.dominated):
+        assert (WEIGHTS[rows].argmax(1) == k).all()
