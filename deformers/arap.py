@@ -1,0 +1,70 @@
+"""The ``arap`` deformer: surface as-rigid-as-possible deformation driven by the edit spec's handles.
+
+Spec: ``{"handles": [{"select": ..., "fixed": true}, {"select": ..., "transform": {...}}], "frames": n}``.
+Handle vertices are placed exactly (fixed ones stay at rest, moved ones follow their transform); every other
+vertex minimises the ARAP energy. One factorisation serves all frames; each frame starts from the previous one.
+Every connected part of the mesh needs at least one handle vertex.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+
+from nerfedit_plugin.arap import ArapResult, ArapSolver
+from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.mesh import SurfaceMesh
+
+
+@dataclasses.dataclass
+class ArapConfig(DeformerConfig):
+    """As-rigid-as-possible surface deformation (Sorkine & Alexa 2007) with handle vertices."""
+
+    _target: type = dataclasses.field(default_factory=lambda: ArapDeformer)
+    energy: Literal["spokes_and_rims", "spokes", "elements"] = "spokes_and_rims"
+    """Rotation groups: per vertex over its triangles' edges (libigl's default, robust to obtuse triangles),
+    per vertex over its incident edges, or per triangle."""
+    max_iterations: int = 200
+    """Upper bound on local/global iterations per frame."""
+    tolerance: float = 1e-6
+    """Stop when the relative energy decrease per iteration falls below this."""
+
+
+class ArapDeformer(Deformer):
+    """Moves the handles of the edit spec and lets the rest of the surface follow as rigidly as possible."""
+
+    spec_keys = frozenset({"handles"})
+    config: ArapConfig
+
+    def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
+        if self.config.max_iterations < 1 or not self.config.tolerance >= 0:
+            raise NerfEditError(
+                f"arap: max_iterations must be >= 1 and tolerance >= 0, got {self.config.max_iterations} and "
+                f"{self.config.tolerance}"
+            )
+        self.rest = rest
+        self.handles, self.targets = edit.handle_targets(rest.vertices)  # validates the spec before any factorising
+        try:
+            self.solver = ArapSolver(rest.vertices, rest.faces, energy=self.config.energy, fixed=self.handles)
+        except NerfEditError as exc:
+            raise NerfEditError(f"{edit.source}: handles: {exc}") from exc
+        self.results: list[ArapResult] = []
+
+    def deform(self) -> np.ndarray:
+        """Solve every frame, warm-starting from the previous one; ``results`` keeps each frame's statistics."""
+        frames, previous, self.results = [], None, []
+        for targets in self.targets:
+            result = self.solver.solve(
+                targets,
+                initial=previous,
+                max_iterations=self.config.max_iterations,
+                tolerance=self.config.tolerance,
+            )
+            self.results.append(result)
+            frames.append(result.vertices)
+            previous = result.vertices
+        return np.stack(frames)

@@ -1,0 +1,260 @@
+"""TetProxy: orientation, exact embedding, enclosure, watertight cage, offsets, cache, bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import igl
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from nerfedit_plugin import proxy as proxy_module
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.locate import locate_brute_force
+from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.proxy import (
+    DEGENERATE_VOLUME_RATIO,
+    ProxyConfig,
+    TetProxy,
+    boundary_faces,
+    build_proxy,
+    cached_proxy,
+    clean_tets,
+    proxy_cache_key,
+    resolve_offset,
+    tet_signed_volumes,
+)
+
+FAST = ProxyConfig(cage_faces=400, edge_length_fac=0.1)
+
+
+def sphere() -> SurfaceMesh:
+    return SurfaceMesh.from_trimesh(trimesh.creation.icosphere(subdivisions=3))
+
+
+def torus() -> SurfaceMesh:
+    return SurfaceMesh.from_trimesh(trimesh.creation.torus(1.0, 0.3))
+
+
+def two_spheres() -> SurfaceMesh:
+    a = trimesh.creation.icosphere(subdivisions=2)
+    b = trimesh.creation.icosphere(subdivisions=2).apply_translation([3.0, 0.0, 0.0])
+    return SurfaceMesh.from_trimesh(trimesh.util.concatenate([a, b]))
+
+
+def open_hemisphere() -> SurfaceMesh:
+    """A scanned-like surface with a large hole (upper half of a sphere)."""
+    full = trimesh.creation.icosphere(subdivisions=3)
+    half = trimesh.Trimesh(full.vertices, full.faces[full.triangles_center[:, 2] > 0], process=False)
+    half.remove_unreferenced_vertices()
+    return SurfaceMesh.from_trimesh(half)
+
+
+@functools.lru_cache(maxsize=None)
+def built(make) -> tuple[SurfaceMesh, TetProxy]:
+    """One FAST build per test mesh, shared by the tests that only read it."""
+    mesh = make()
+    return mesh, build_proxy(mesh, FAST)
+
+
+def assert_valid_proxy(proxy: TetProxy, mesh: SurfaceMesh, config: ProxyConfig = FAST) -> None:
+    """Every invariant of the TetProxy contract, checked against independent oracles."""
+    vertices, tets = proxy.vertices, proxy.tets
+    assert vertices.dtype == np.float64 and tets.dtype == np.int64
+    assert proxy.embed_tets.dtype == np.int64 and proxy.embed_bary.dtype == np.float64
+    # positively oriented, no zero-volume tets, no unreferenced vertices
+    volumes = tet_signed_volumes(vertices, tets)
+    assert volumes.min() > DEGENERATE_VOLUME_RATIO * np.median(volumes)
+    assert np.array_equal(np.unique(tets), np.arange(len(vertices)))
+    # every surface vertex embedded; barycentrics recomputed independently (3x3 solve per vertex)
+    assert proxy.embed_tets.shape == (mesh.n_vertices,) and proxy.embed_tets.min() >= 0
+    corners = vertices[tets[proxy.embed_tets]]  # (V,4,3)
+    edges = (corners[:, 1:] - corners[:, :1]).transpose(0, 2, 1)  # (V,3,3), columns b-a, c-a, d-a
+    solved = np.linalg.solve(edges, (mesh.vertices - corners[:, 0])[:, :, None])[:, :, 0]
+    oracle = np.concatenate([1.0 - solved.sum(1, keepdims=True), solved], axis=1)
+    np.testing.assert_allclose(proxy.embed_bary, oracle, atol=1e-9)
+    np.testing.assert_allclose(proxy.embed_bary.sum(1), 1.0, atol=1e-12)
+    assert proxy.embed_bary.min() >= -1e-9  # inside its tet (the exact enclosure check)
+    # A @ proxy vertices reproduces the surface
+    reproduced = proxy.embedding_matrix() @ vertices
+    assert proxy.embedding_matrix().shape == (mesh.n_vertices, len(vertices))
+    assert np.abs(reproduced - mesh.vertices).max() <= 1e-9 * mesh.bbox_diagonal
+    # the boundary surface is libigl's, oriented outward: it encloses exactly the tets' volume
+    boundary = boundary_faces(tets)
+    assert {tuple(f) for f in np.sort(boundary, 1)} == {tuple(f) for f in np.sort(igl.boundary_facets(tets)[0], 1)}
+    tri = vertices[boundary]
+    enclosed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6
+    assert enclosed == pytest.approx(volumes.sum(), rel=1e-9)
+    # margin: points min_margin x offset away from each surface vertex (6 axis directions) are inside tets too
+    radius = 0.99 * config.min_margin * proxy.info["offset"]
+    assert proxy.info["margin"] >= config.min_margin
+    directions = np.concatenate([np.eye(3), -np.eye(3)])
+    around = (mesh.vertices[:, None] + radius * directions).reshape(-1, 3)
+    tet, _ = locate_brute_force(vertices, tets, torch.from_numpy(around), dtype=torch.float64)
+    assert (tet >= 0).all()
+    # the cage is watertight and encloses every surface vertex (generalised winding number ~ 1)
+    assert proxy.cage.to_trimesh().is_watertight
+    winding = igl.fast_winding_number(proxy.cage.vertices, proxy.cage.faces, mesh.vertices)
+    assert winding.min() > 0.5
+
+
+@pytest.mark.parametrize("make", [torus, two_spheres, open_hemisphere], ids=lambda f: f.__name__)
+def test_proxy_invariants(make):
+    mesh, proxy = built(make)
+    assert_valid_proxy(proxy, mesh)
+    assert proxy.info["offset"] == pytest.approx(0.02 * mesh.bbox_diagonal * 1.5 ** (proxy.info["attempts"] - 1))
+
+
+def test_two_components_each_get_tets():
+    mesh, proxy = built(two_spheres)
+    left = proxy.embed_tets[mesh.vertices[:, 0] < 1.5]
+    right = proxy.embed_tets[mesh.vertices[:, 0] > 1.5]
+    side = proxy.vertices[proxy.tets][:, :, 0] > 1.5  # (K,4): tet corners right of the gap between the spheres
+    assert (side.all(1) | ~side.any(1)).all()  # no tet bridges the gap: two separate blobs
+    assert not side[left].any() and side[right].all()
+
+
+def test_offset_from_camera_distance():
+    """Also the invariants test of the sphere."""
+    mesh = sphere()
+    assert resolve_offset(mesh, FAST, camera_distance=4.0) == pytest.approx(0.05 * 4.0)
+    assert resolve_offset(mesh, FAST) == pytest.approx(0.02 * mesh.bbox_diagonal)
+    assert resolve_offset(mesh, dataclasses.replace(FAST, offset=0.3), camera_distance=4.0) == 0.3
+    proxy = build_proxy(mesh, FAST, camera_distance=4.0)
+    assert_valid_proxy(proxy, mesh)
+    assert proxy.info["attempts"] == 1 and proxy.info["offset"] == pytest.approx(0.2)
+    # the cage lies ~offset outside the unit sphere
+    radii = np.linalg.norm(proxy.cage.vertices, axis=1)
+    assert np.median(radii) == pytest.approx(1.2, abs=0.04)
+    with pytest.raises(NerfEditError, match="camera distance"):
+        resolve_offset(mesh, FAST, camera_distance=-1.0)
+
+
+def test_retry_grows_offset_until_enclosed_with_margin():
+    """An 8-face cage is an octahedron-like hull around the unit sphere: at offset 2/3 it cuts into the sphere
+    (vertices outside), at 1 it holds it with ~0.05 x offset to spare (< min_margin 0.1), at 1.5 with ~0.14."""
+    mesh = sphere()
+    coarse = dataclasses.replace(FAST, cage_faces=8, offset=2 / 3, offset_growth=1.5, max_attempts=3, min_margin=0.1)
+    proxy = build_proxy(mesh, coarse)
+    assert proxy.info["attempts"] == 3 and proxy.info["offset"] == pytest.approx(1.5)
+    assert_valid_proxy(proxy, mesh, coarse)
+    with pytest.raises(NerfEditError, match="outside the tets"):
+        build_proxy(mesh, dataclasses.replace(coarse, max_attempts=1))
+    with pytest.raises(NerfEditError, match="inside the tet boundary"):
+        build_proxy(mesh, dataclasses.replace(FAST, min_margin=0.95, max_attempts=1))
+
+
+def test_unreferenced_vertex_is_embedded():
+    base = trimesh.creation.icosphere(subdivisions=2)
+    mesh = SurfaceMesh(np.vstack([base.vertices, [[2.5, 0.0, 0.0]]]), base.faces)
+    proxy = build_proxy(mesh, FAST)
+    assert_valid_proxy(proxy, mesh)
+
+
+def test_clean_tets_reorients_and_drops_degenerate():
+    vertices = np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [9, 9, 9], [0, 0, -1]], dtype=np.float64
+    )
+    tets = np.array([[0, 2, 1, 3], [0, 1, 2, 3], [0, 1, 2, 4], [0, 1, 2, 6]])  # negative, positive, flat, negative
+    cleaned, new_tets, dropped = clean_tets(vertices, tets)
+    assert dropped == 1 and len(new_tets) == 3
+    np.testing.assert_allclose(tet_signed_volumes(cleaned, new_tets), [1 / 6] * 3)
+    # vertex 4 (only in the flat tet) and 5 (unused) are gone; the rest keep their order
+    np.testing.assert_array_equal(cleaned, vertices[[0, 1, 2, 3, 6]])
+    np.testing.assert_array_equal(np.sort(cleaned[new_tets], axis=1), np.sort(vertices[tets[[0, 1, 3]]], axis=1))
+
+
+def test_cache_hit_returns_identical_arrays_without_tetwild(tmp_path, monkeypatch):
+    import pytetwild
+
+    mesh = sphere()
+    proxy, hit = cached_proxy(mesh, FAST, tmp_path)
+    assert not hit
+    assert (tmp_path / f"{proxy_cache_key(mesh, FAST)}.npz").is_file()
+
+    def no_tetwild(*args, **kwargs):
+        raise AssertionError("pytetwild ran on a cache hit")
+
+    monkeypatch.setattr(pytetwild, "tetrahedralize", no_tetwild)
+    again, hit = cached_proxy(mesh, FAST, tmp_path)
+    assert hit
+    for name in ("vertices", "tets", "embed_tets", "embed_bary"):
+        assert np.array_equal(getattr(again, name), getattr(proxy, name))
+    assert np.array_equal(again.cage.vertices, proxy.cage.vertices)
+    assert np.array_equal(again.cage.faces, proxy.cage.faces)
+    assert again.info == proxy.info
+    # a changed parameter or mesh misses (and would have to run tetwild)
+    with pytest.raises(AssertionError, match="cache hit"):
+        cached_proxy(mesh, dataclasses.replace(FAST, epsilon=1e-2), tmp_path)
+    with pytest.raises(AssertionError, match="cache hit"):
+        cached_proxy(mesh.with_vertices(mesh.vertices * 1.01), FAST, tmp_path)
+    # a corrupt cache entry is rebuilt (not trusted) and overwritten
+    path = tmp_path / f"{proxy_cache_key(mesh, FAST)}.npz"
+    path.write_bytes(b"not a zip")
+    calls = []
+    monkeypatch.setattr(proxy_module, "build_proxy", lambda *args: calls.append(args) or proxy)
+    rebuilt, hit = cached_proxy(mesh, FAST, tmp_path)
+    assert not hit and len(calls) == 1 and rebuilt is proxy
+    assert np.array_equal(TetProxy.load(path).tets, proxy.tets)
+
+
+def test_cache_key_tracks_mesh_and_parameters():
+    mesh = sphere()
+    key = proxy_cache_key(mesh, FAST)
+    assert key == proxy_cache_key(sphere(), ProxyConfig(cage_faces=400, edge_length_fac=0.1))
+    moved = mesh.vertices.copy()
+    moved[0, 0] += 1e-12
+    faces = mesh.faces.copy()
+    faces[0] = faces[0, [1, 2, 0]]
+    changed = [
+        proxy_cache_key(SurfaceMesh(moved, mesh.faces), FAST),
+        proxy_cache_key(SurfaceMesh(mesh.vertices, faces), FAST),
+        proxy_cache_key(mesh, dataclasses.replace(FAST, epsilon=1e-2)),
+        proxy_cache_key(mesh, dataclasses.replace(FAST, cage_faces=401)),
+        proxy_cache_key(mesh, dataclasses.replace(FAST, edge_length_fac=0.09)),
+        proxy_cache_key(mesh, dataclasses.replace(FAST, wrap_alpha_factor=2.0)),
+        proxy_cache_key(mesh, dataclasses.replace(FAST, offset_bbox_fraction=0.03)),
+        proxy_cache_key(mesh, FAST, camera_distance=4.0),
+    ]
+    assert len(set(changed + [key])) == len(changed) + 1
+    # only the resolved offset matters: an explicit offset equal to the derived one is the same build
+    same = dataclasses.replace(FAST, offset=resolve_offset(mesh, FAST))
+    assert proxy_cache_key(mesh, same) == key
+    assert proxy_cache_key(mesh, same, camera_distance=4.0) == key
+
+
+def test_save_load_roundtrip_and_bad_files(tmp_path):
+    mesh, proxy = built(two_spheres)
+    path = tmp_path / "proxy.npz"
+    proxy.save(path)
+    loaded = TetProxy.load(path)
+    assert_valid_proxy(loaded, mesh)
+    assert (loaded.embedding_matrix() != proxy.embedding_matrix()).nnz == 0
+    with pytest.raises(NerfEditError, match="not found"):
+        TetProxy.load(tmp_path / "missing.npz")
+    (tmp_path / "junk.npz").write_bytes(b"junk")
+    with pytest.raises(NerfEditError, match="junk.npz"):
+        TetProxy.load(tmp_path / "junk.npz")
+    np.savez(tmp_path / "other.npz", vertices=np.zeros((3, 3)))
+    with pytest.raises(NerfEditError, match="other.npz"):
+        TetProxy.load(tmp_path / "other.npz")
+
+
+def test_bad_input_raises(tmp_path):
+    empty = SurfaceMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    with pytest.raises(NerfEditError, match="empty"):
+        build_proxy(empty, FAST)
+    with pytest.raises(NerfEditError, match="empty"):
+        cached_proxy(empty, FAST, tmp_path)
+    points_only = SurfaceMesh(np.random.default_rng(0).normal(size=(5, 3)), np.zeros((0, 3), dtype=np.int64))
+    with pytest.raises(NerfEditError, match="no triangles"):
+        build_proxy(points_only, FAST)
+    collapsed = SurfaceMesh(np.ones((3, 3)), np.array([[0, 1, 2]]))
+    with pytest.raises(NerfEditError, match="coincide"):
+        build_proxy(collapsed, FAST)
+    for field, value in [("offset", -1.0), ("cage_faces", 2), ("epsilon", 0.0), ("offset_growth", 1.0)]:
+        with pytest.raises(NerfEditError, match=f"proxy.{field}"):
+            build_proxy(sphere(), dataclasses.replace(FAST, **{field: value}))
