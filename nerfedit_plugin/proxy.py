@@ -263,13 +263,19 @@ def clean_tets(vertices: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Raw pytetwild tet mesh of the cage (``optimize=True``; orientation as pytetwild returns it)."""
+    """Raw pytetwild tet mesh of the cage (``optimize=True``; orientation as pytetwild returns it).
+
+    Runs in a scratch folder: fTetWild drops ``__tracked_surface.stl`` into the working directory.
+    """
+    import tempfile
+
     import pytetwild
 
-    vertices, tets = pytetwild.tetrahedralize(
-        cage.vertices, cage.faces.astype(np.int32), edge_length_fac=config.edge_length_fac,
-        epsilon=config.epsilon, optimize=True, quiet=True,
-    )
+    with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):
+        vertices, tets = pytetwild.tetrahedralize(
+            cage.vertices, cage.faces.astype(np.int32), edge_length_fac=config.edge_length_fac,
+            epsilon=config.epsilon, optimize=True, quiet=True,
+        )
     return np.asarray(vertices, dtype=np.float64), np.asarray(tets, dtype=np.int64).reshape(-1, 4)
 
 
