@@ -1,0 +1,245 @@
+"""Cage deformer: a closed triangle cage around the mesh carries it by mean value (default) or Green coordinates.
+
+Edit spec (besides ``frames``):
+
+* ``"cage": "cage.ply"`` + ``"deformed_cage": "cage_deformed.ply"`` — both cages given (same vertex order, e.g.
+  edited in Blender); paths are relative to the spec's folder. Frames interpolate linearly from rest.
+* ``"cage": "auto"`` (the default) or a cage file + ``"handles"`` — handle selections and transforms are applied
+  to the *cage vertices* (``indices`` selections index cage vertices; unselected cage vertices stay put), exactly
+  as ARAP applies them to mesh vertices.
+
+``bind`` computes the coordinates of every mesh vertex once (a dense ``(V, C)`` matrix); each pose is then one
+matrix product. Mesh points outside the cage trigger a warning (mean value coordinates extrapolate; Green
+coordinates are undefined there, so those points fall back to mean value coordinates).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import tyro
+
+from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.mesh import SurfaceMesh
+
+from .green import green_coordinates, green_face_terms
+from .mean_value import mean_value_coordinates
+
+
+@dataclasses.dataclass
+class CageConfig(DeformerConfig):
+    """Cage-based deformation (mean value or Green coordinates)."""
+
+    _target: tyro.conf.Suppress[type] = dataclasses.field(default_factory=lambda: CageDeformer)
+    coordinates: Literal["mvc", "green"] = "mvc"
+    """Space coordinates: ``mvc`` (mean value: smooth, exact for affine cage maps, extrapolates outside the cage)
+    or ``green`` (Green coordinates: shape-preserving, exact for similarities, defined inside the cage only)."""
+    auto_alpha: float = 5.0
+    """``"cage": "auto"``: alpha-wrap ball size in percent of the mesh's bounding-box diagonal."""
+    auto_offset: float = 2.0
+    """``"cage": "auto"``: distance of the wrap from the mesh in percent of the bounding-box diagonal (doubled, up to
+    twice, when simplification would leave mesh vertices outside)."""
+    auto_max_vertices: int = 400
+    """``"cage": "auto"``: simplify the wrap (quadric edge collapse) to at most this many vertices."""
+    chunk_size: int = 32
+    """Points per block when evaluating coordinates (memory ≈ 40 · cage faces · chunk_size floats per thread)."""
+
+
+def auto_cage(mesh: SurfaceMesh, alpha: float = 5.0, offset: float = 2.0, max_vertices: int = 400) -> SurfaceMesh:
+    """A coarse watertight cage around ``mesh``: pymeshlab alpha wrap (percentages of the bbox diagonal), then
+    quadric edge collapse down to ``max_vertices`` if needed."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces.astype(np.int32)))
+    ms.generate_alpha_wrap(alpha=pymeshlab.PercentageValue(alpha), offset=pymeshlab.PercentageValue(offset))
+    if ms.current_mesh().vertex_number() > max_vertices:  # genus 0: F ≈ 2V
+        ms.meshing_decimation_quadric_edge_collapse(targetfacenum=2 * max_vertices - 4, preservetopology=True)
+    wrap = ms.current_mesh()
+    return SurfaceMesh(wrap.vertex_matrix(), wrap.face_matrix())
+
+
+def validate_cage(cage: SurfaceMesh, label: str) -> SurfaceMesh:
+    """Check a cage is a closed, consistently oriented triangle mesh without degenerate faces; return it with
+    outward-facing triangles. ``label`` (file and key) prefixes every error."""
+    faces = cage.faces
+    if len(faces) < 4:
+        raise NerfEditError(f"{label}: a closed cage needs at least 4 triangles, got {len(faces)}")
+    if np.any((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])):
+        raise NerfEditError(f"{label}: has triangles with a repeated vertex")
+    v = cage.vertices
+    area2 = np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
+    if np.any(area2 <= 1e-12 * cage.bbox_diagonal**2):
+        raise NerfEditError(f"{label}: {np.count_nonzero(area2 <= 1e-12 * cage.bbox_diagonal**2)} triangles have zero area")
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    keys, counts = np.unique(directed[:, 0] * len(v) + directed[:, 1], return_counts=True)
+    if np.any(counts > 1):
+        raise NerfEditError(f"{label}: not consistently oriented or not manifold ({np.count_nonzero(counts > 1)} edges are "
+                            "traversed twice in the same direction); recompute normals consistently "
+                            "(Blender: Recalculate Outside)")
+    boundary = ~np.isin(directed[:, 1] * len(v) + directed[:, 0], keys)
+    if np.any(boundary):
+        raise NerfEditError(f"{label}: not closed ({np.count_nonzero(boundary)} boundary edges); a cage must be watertight "
+                            "(merge duplicate vertices — Blender: Merge by Distance — and fill holes)")
+    volume = np.einsum("fi,fi->f", v[faces[:, 0]], np.cross(v[faces[:, 1]], v[faces[:, 2]])).sum() / 6.0
+    return cage if volume > 0 else SurfaceMesh(v, faces[:, ::-1].copy())
+
+
+def _load_cage(spec: EditSpec, key: str) -> SurfaceMesh:
+    """Read the mesh file named by ``key``; errors name the spec, the key and the file."""
+    path = spec.path(key)
+    try:
+        return SurfaceMesh.load(path)
+    except NerfEditError as exc:
+        message = str(exc) if str(path) in str(exc) else f"{path}: {exc}"
+        raise NerfEditError(f"{spec.source}: {key}: {message}") from None
+
+
+class CageDeformer(Deformer):
+    """Binds mesh vertices to a cage; ``rest_cage`` and ``deformed_cages (frames, C, 3)`` are set by :meth:`bind`."""
+
+    spec_keys = frozenset({"cage", "deformed_cage", "handles"})
+
+    def __init__(self, config: CageConfig) -> None:
+        super().__init__(config)
+        rules = {"auto_alpha": (config.auto_alpha > 0, "> 0"), "auto_offset": (config.auto_offset > 0, "> 0"),
+                 "auto_max_vertices": (config.auto_max_vertices >= 4, ">= 4"),
+                 "chunk_size": (config.chunk_size >= 1, ">= 1")}
+        for name, (ok, rule) in rules.items():
+            if not ok:
+                raise NerfEditError(f"cage deformer: {name} must be {rule}, got {getattr(config, name)}")
+        self.rest_cage: SurfaceMesh | None = None
+        self.deformed_cages: np.ndarray | None = None
+        self._weights: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._last: tuple[np.ndarray, tuple[np.ndarray, np.ndarray | None]] | None = None
+
+    # ---- binding -----------------------------------------------------------------------------------------------
+    def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
+        cage_value = edit.extra.get("cage", "auto")
+        if not isinstance(cage_value, str):
+            raise NerfEditError(f"{edit.source}: cage: expected \"auto\" or a mesh file, got {cage_value!r}")
+        has_target, has_handles = "deformed_cage" in edit.extra, bool(edit.handles)
+        if has_target and has_handles:
+            raise NerfEditError(f"{edit.source}: deformed_cage and handles: give one of them, not both")
+        if not (has_target or has_handles):
+            raise NerfEditError(f"{edit.source}: nothing moves the cage: give 'deformed_cage' or 'handles'")
+        if cage_value == "auto":
+            if has_target:
+                raise NerfEditError(f"{edit.source}: deformed_cage: needs a cage file with the same vertex order, "
+                                    "but cage is \"auto\"")
+            label = f"{edit.source}: cage: auto"
+            cage, mean_value = self._auto_cage(rest, label)
+        else:
+            label = f"{edit.source}: cage: {edit.path('cage')}"
+            loaded = _load_cage(edit, "cage")
+            cage = validate_cage(loaded, label)
+            mean_value = self._mean_value(rest.vertices, cage)
+
+        if has_target:
+            target = _load_cage(edit, "deformed_cage")
+            where = f"{edit.source}: deformed_cage: {edit.path('deformed_cage')}"
+            if target.n_vertices != cage.n_vertices:
+                raise NerfEditError(f"{where}: has {target.n_vertices} vertices, the cage has {cage.n_vertices} "
+                                    "(same vertex order required)")
+            if not np.array_equal(np.sort(target.faces, axis=1), np.sort(loaded.faces, axis=1)):
+                raise NerfEditError(f"{where}: its triangles differ from the cage's (edit vertex positions only)")
+            t = edit.times[:, None, None]
+            poses = (1.0 - t) * cage.vertices + t * target.vertices
+        else:
+            idx, targets = edit.handle_targets(cage.vertices)
+            poses = np.repeat(cage.vertices[None], edit.frames, axis=0)
+            poses[:, idx] = targets
+
+        self.rest_cage, self.deformed_cages, self._last = cage, poses, None
+        self._weights, outside = self._coordinates(rest.vertices, *mean_value)
+        if outside:
+            fallback = ("mean value coordinates extrapolate them" if self.config.coordinates == "mvc"
+                        else "Green coordinates are undefined there; they use mean value coordinates")
+            warnings.warn(f"{label}: {outside} of {rest.n_vertices} mesh vertices lie outside the cage ({fallback})",
+                          stacklevel=2)
+
+    def _mean_value(self, points: np.ndarray, cage: SurfaceMesh) -> tuple[np.ndarray, np.ndarray]:
+        """Mean value coordinates ``(P, C)`` and winding numbers ``(P,)`` of ``points`` in ``cage``."""
+        return mean_value_coordinates(points, cage.vertices, cage.faces, chunk_size=self.config.chunk_size,
+                                      return_winding=True)
+
+    def _auto_cage(self, rest: SurfaceMesh, label: str) -> tuple[SurfaceMesh, tuple[np.ndarray, np.ndarray]]:
+        """The automatic cage and the mesh's mean value coordinates in it. Simplification can cut into the mesh:
+        then wrap again farther out (offset ×2, ×4) until every vertex is inside."""
+        cfg = self.config
+        for attempt in range(3):
+            wrap = auto_cage(rest, cfg.auto_alpha, cfg.auto_offset * 2**attempt, cfg.auto_max_vertices)
+            cage = validate_cage(wrap, label)
+            phi, winding = self._mean_value(rest.vertices, cage)
+            if not np.any(np.abs(winding) < 0.5):
+                break
+        return cage, (phi, winding)
+
+    def _coordinates(self, points: np.ndarray, phi: np.ndarray,
+                     winding: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray | None], int]:
+        """``((phiᵀ (C, P), psiᵀ (F, P) or None), number of points outside the cage)`` from the points' mean value
+        coordinates and winding numbers in the rest cage; transposed so a pose is one C-contiguous product."""
+        cage, chunk = self.rest_cage, self.config.chunk_size
+        inside = np.abs(winding) > 0.5  # on the cage (winding ½) counts neither as inside nor as outside
+        outside = int(np.count_nonzero(np.abs(winding) < 0.5))
+        if self.config.coordinates == "mvc":
+            return (phi.T, None), outside
+        phi_t, psi_t = phi.T, np.zeros((len(cage.faces), len(points)))  # inside columns become Green coordinates
+        green_phi, green_psi = green_coordinates(points[inside], cage.vertices, cage.faces, chunk_size=chunk)
+        phi_t[:, inside], psi_t[:, inside] = green_phi.T, green_psi.T
+        return (phi_t, psi_t), outside
+
+    # ---- evaluation --------------------------------------------------------------------------------------------
+    def _apply(self, weights: tuple[np.ndarray, np.ndarray | None], frame: int) -> np.ndarray:
+        phi_t, psi_t = weights
+        pose = self.deformed_cages[frame]
+        out = pose.T @ phi_t
+        if psi_t is not None:
+            out += green_face_terms(self.rest_cage.vertices, pose, self.rest_cage.faces).T @ psi_t
+        return np.ascontiguousarray(out.T)
+
+    def deform(self) -> np.ndarray:
+        if self._weights is None:
+            raise RuntimeError("CageDeformer.deform() called before bind()")
+        return np.stack([self._apply(self._weights, f) for f in range(len(self.deformed_cages))])
+
+    def deform_points(self, points: np.ndarray, frame: int) -> np.ndarray:
+        """Cage coordinates of ``points`` (cached for repeated calls with the same points) applied to ``frame``."""
+        if self._weights is None:
+            raise RuntimeError("CageDeformer.deform_points() called before bind()")
+        points = np.asarray(points, dtype=np.float64)
+        if self._last is None or not np.array_equal(self._last[0], points):
+            self._last = (points.copy(), self._coordinates(points, *self._mean_value(points, self.rest_cage))[0])
+        return self._apply(self._last[1], frame)
+
+    def write_artifacts(self, out_dir: Path) -> list[Path]:
+        """Write the cages used: ``cage_rest.ply`` and ``cage_deformed.ply`` (``cage_deformed_0000.ply``… for sequences)."""
+        out_dir = Path(out_dir)
+        n = len(self.deformed_cages)
+        names = ["cage_deformed.ply"] if n == 1 else [f"cage_deformed_{i:04d}.ply" for i in range(n)]
+        written = [out_dir / "cage_rest.ply"]
+        self.rest_cage.save(written[0])
+        for name, pose in zip(names, self.deformed_cages):
+            self.rest_cage.with_vertices(pose).save(out_dir / name)
+            written.append(out_dir / name)
+        return written
+
+    # ---- conformance-kit hooks ---------------------------------------------------------------------------------
+    @classmethod
+    def identity_edit(cls, edit: dict, rest: SurfaceMesh) -> dict | None:
+        """The deformed cage is the rest cage; for handle edits the kit's default (zero transforms) applies."""
+        return {**edit, "deformed_cage": edit["cage"]} if "deformed_cage" in edit else None
+
+    @classmethod
+    def rigid_edit(cls, edit: dict, rest: SurfaceMesh) -> dict:
+        """Move every cage vertex by one rigid motion (a handle selecting the whole cage)."""
+        out = {k: v for k, v in edit.items() if k not in ("deformed_cage", "handles")}
+        everything = {"box": {"min": [-1e12] * 3, "max": [1e12] * 3}}
+        motion = {"rotate": {"axis": [1.0, -1.0, 2.0], "degrees": 30.0}, "translate": [0.1 * rest.bbox_diagonal, 0.0, 0.0]}
+        return {**out, "handles": [{"select": everything, "transform": motion}]}

@@ -1,0 +1,269 @@
+"""3-D mean value coordinates of a closed, consistently oriented triangle cage (Ju, Schaefer & Warren 2005).
+
+For a point x let d_i = ‖v_i − x‖, u_i = (v_i − x)/d_i, and for a face (i₀, i₁, i₂) let θ_k be the arc
+opposite u_k (the angle the edge opposite corner k subtends at x). Ju et al.:
+
+    w_{i_k} += (θ_k − c_{k+1} θ_{k+2} − c_{k+2} θ_{k+1}) / (d_{i_k} sin θ_{k+1} s_{k+2}),   λ = w / Σ w,
+
+c_j, s_j = cosine and sine of the spherical triangle's angle at u_j. We evaluate it without trigonometry
+that loses digits near the cage:
+
+* arcs from distances only: for an edge (a, b) of length ℓ, num = ℓ² − (d_a − d_b)² = 4d_ad_b sin²(θ/2) and
+  den = (d_a + d_b)² − ℓ² = 4d_ad_b cos²(θ/2), so θ = 2 atan2(√num, √den) (pairs with θ ≈ 0 or π, where
+  these differences cancel, are recomputed from unit vectors);
+* law of cosines c_j = P_j / (sin θ_{j+1} sin θ_{j+2}), P_j = cos θ_j − cos θ_{j+1} cos θ_{j+2}, and law of
+  sines sin θ_{k+1} s_{k+2} = det[u₀,u₁,u₂] / sin θ_k with det[u₀,u₁,u₂] d₀d₁d₂ = n_f·(v_{i₀} − x)
+  (n_f the face's area normal: one matrix product for all faces). With μ = θ / sin θ this gives
+
+      w_{i_k} += (θ_k sin θ_k − μ_{k+1} P_{k+2} − μ_{k+2} P_{k+1}) · d₀d₁d₂ / (n_f·(v_{i₀} − x)) / d_{i_k}.
+
+Degenerate cases (REFERENCE.md): x on a vertex → δ; x within ``EDGE_EPS`` of an edge → linear interpolation
+along it; x on a face (distance to its plane ≤ ``PLANE_EPS``, inside) → the face's barycentrics; x in a face's
+plane outside it → that face is skipped. Optionally the winding number Σ_f Ω_f / 4π (solid angle
+Ω_f/2 = atan2(n_f·(v₀ − x), d₀d₁d₂(1 + Σ cos θ))) for inside tests. Exterior points extrapolate.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+VERTEX_EPS = 1e-12  # ‖x − v‖ ≤ VERTEX_EPS × cage size ⇒ x is the vertex
+EDGE_EPS = 1e-8  # distance to an edge ≤ EDGE_EPS × cage size ⇒ linear interpolation along the edge
+PLANE_EPS = 1e-12  # distance to a face's plane ≤ PLANE_EPS × cage size ⇒ x is on the face or the face is skipped
+BARY_EPS = 1e-9  # a point in a face's plane is on the face when its barycentrics are ≥ −BARY_EPS
+NEAR_LINE = 1e-6  # sin²(θ/2) or cos²(θ/2) below this ⇒ θ is recomputed from unit vectors
+
+
+@dataclass(frozen=True)
+class CageGeometry:
+    """Per-cage precomputation (coordinates centred on the vertex mean for accurate plane products)."""
+
+    origin: np.ndarray  # (3,) subtracted from vertices and points
+    vertices: np.ndarray  # (C, 3) centred
+    faces: np.ndarray  # (F, 3)
+    scale: float  # bounding-box diagonal
+    edges: np.ndarray  # (E, 2) unique undirected edges
+    lengths: np.ndarray  # (E,)
+    face_edges: np.ndarray  # (F, 3): the edge opposite corner k
+    normals: np.ndarray  # (F, 3) area normals (v₁ − v₀) × (v₂ − v₀)
+    area2: np.ndarray  # (F,) their norms (twice the areas)
+    offsets: np.ndarray  # (F,) n_f · v₀
+    scatter: sp.csr_matrix  # (C, 3F): sums per-corner values into vertices (corner k of face f = row kF + f)
+
+    @classmethod
+    def of(cls, vertices: np.ndarray, faces: np.ndarray) -> "CageGeometry":
+        vertices = np.asarray(vertices, dtype=np.float64)
+        faces = np.asarray(faces, dtype=np.int64)
+        origin = vertices.mean(0)
+        v = vertices - origin
+        opposite = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1).reshape(-1, 2)
+        edges, inverse = np.unique(np.sort(opposite, axis=1), axis=0, return_inverse=True)
+        normals = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+        n = len(faces)
+        scatter = sp.csr_matrix((np.ones(3 * n), (faces.T.reshape(-1), np.arange(3 * n))), shape=(len(v), 3 * n))
+        return cls(
+            origin=origin,
+            vertices=v,
+            faces=faces,
+            scale=max(float(np.linalg.norm(v.max(0) - v.min(0))), 1e-300),
+            edges=edges,
+            lengths=np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1),
+            face_edges=inverse.reshape(n, 3),
+            normals=normals,
+            area2=np.linalg.norm(normals, axis=1),
+            offsets=np.einsum("fi,fi->f", normals, v[faces[:, 0]]),
+            scatter=scatter,
+        )
+
+
+def mean_value_coordinates(
+    points: np.ndarray,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    chunk_size: int = 64,
+    workers: int = 2,
+    return_winding: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Mean value coordinates ``(P, C)`` float64 of ``points (P,3)`` w.r.t. the cage ``(vertices, faces)``.
+
+    Rows sum to 1 and reproduce linear functions: ``coords @ vertices == points``. Evaluated in chunks of
+    ``chunk_size`` points on ``workers`` threads, each with a preallocated workspace of ≈ 25 · F · chunk_size
+    float64 (allocation-free inner loop). The result is a Fortran-ordered view. With ``return_winding`` also
+    returns the cage's winding number at each point (±1 inside, 0 outside; the sign is the orientation).
+    """
+    cage = CageGeometry.of(vertices, faces)
+    points = np.asarray(points, dtype=np.float64) - cage.origin
+    coords = np.empty((len(cage.vertices), len(points)))  # (C, P): returned transposed (a view, no copy)
+    winding = np.empty(len(points))
+    starts = range(0, len(points), chunk_size)
+    workers = max(1, min(workers, len(starts)))
+
+    def work(first: int) -> None:
+        kernel = _Kernel(cage, min(chunk_size, len(points)), return_winding)
+        for start in starts[first::workers]:
+            block = slice(start, start + chunk_size)
+            coords[:, block], winding[block] = kernel(points[block])
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:  # numpy releases the GIL inside the kernels
+        list(pool.map(work, range(workers)))
+    return (coords.T, winding) if return_winding else coords.T
+
+
+class _Kernel:
+    """Evaluates one chunk of points into preallocated buffers; arrays are (vertex | edge | face, point)."""
+
+    def __init__(self, cage: CageGeometry, size: int, with_winding: bool) -> None:
+        n_v, n_e, n_f = len(cage.vertices), len(cage.edges), len(cage.faces)
+        self.cage, self.size, self.with_winding = cage, size, with_winding
+        self.len2 = (cage.lengths**2)[:, None]
+        self.plane_tol = (PLANE_EPS * cage.scale * cage.area2)[:, None]
+        self.dist, self.vtmp = np.empty((2, n_v, size))
+        self.da, self.db, self.num, self.den, self.both, self.theta, self.etmp = np.empty((7, n_e, size))
+        self.edge_q = np.empty((3, n_e, size))  # per edge: cos θ, μ = θ / sin θ, θ sin θ
+        self.face_q = np.empty((3, 3, n_f, size))  # the same, gathered for the edge opposite each corner
+        self.dprod, self.vol, self.inv_det, self.ftmp = np.empty((4, n_f, size))
+        self.in_plane = np.empty((n_f, size), dtype=bool)
+        self.near = np.empty((n_e, size), dtype=bool)
+        self.p = np.empty((3, n_f, size))
+        self.stacked = np.empty((3, n_f, size))
+
+    def __call__(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(x)
+        if n < self.size:  # last chunk: pad with copies of its last point
+            x = np.concatenate([x, np.repeat(x[-1:], self.size - n, axis=0)])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            on_edge = self._edges(x)
+            lam, winding = self._faces(x)
+        self._degenerate(x, lam, winding, on_edge)
+        return lam[:, :n], winding[:n]
+
+    def _edges(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cage, dist, vtmp = self.cage, self.dist, self.vtmp
+        np.subtract(cage.vertices[:, 0, None], x[:, 0], out=dist)
+        np.square(dist, out=dist)
+        for i in (1, 2):
+            np.subtract(cage.vertices[:, i, None], x[:, i], out=vtmp)
+            np.square(vtmp, out=vtmp)
+            dist += vtmp
+        np.sqrt(dist, out=dist)
+
+        da, db, num, den, both, tmp = self.da, self.db, self.num, self.den, self.both, self.etmp
+        np.take(dist, cage.edges[:, 0], axis=0, out=da, mode="clip")
+        np.take(dist, cage.edges[:, 1], axis=0, out=db, mode="clip")
+        np.subtract(da, db, out=tmp)
+        np.square(tmp, out=tmp)
+        np.subtract(self.len2, tmp, out=num)  # 4 d_a d_b sin²(θ/2)
+        np.add(da, db, out=tmp)
+        np.square(tmp, out=tmp)
+        np.subtract(tmp, self.len2, out=den)  # 4 d_a d_b cos²(θ/2)
+        np.add(num, den, out=both)  # 4 d_a d_b
+        cos, mu, tsin = self.edge_q
+        np.subtract(den, num, out=cos)
+        cos /= both
+        np.arccos(cos, out=self.theta)  # accurate away from θ ≈ 0, π
+
+        # θ ≈ 0 or π (x near an edge's line): num or den cancels; recompute those pairs from unit vectors
+        np.abs(cos, out=tmp)
+        np.greater_equal(tmp, 1.0 - 2.0 * NEAR_LINE, out=self.near)
+        on_edge = (cage.edges[:0, 0], cage.edges[:0, 0])
+        rows = np.flatnonzero(self.near.any(1))
+        if rows.size:
+            ei, pi = np.nonzero(self.near[rows])
+            ei = rows[ei]
+            rel = [cage.vertices[cage.edges[ei, j]] - x[pi] for j in (0, 1)]
+            unit = [r / dist[cage.edges[ei, j], pi][:, None] for j, r in enumerate(rel)]
+            sin_half = 0.5 * np.linalg.norm(unit[0] - unit[1], axis=1)
+            cos_half = 0.5 * np.linalg.norm(unit[0] + unit[1], axis=1)
+            num[ei, pi], den[ei, pi] = both[ei, pi] * sin_half**2, both[ei, pi] * cos_half**2
+            cos[ei, pi] = (cos_half - sin_half) * (cos_half + sin_half)
+            self.theta[ei, pi] = 2.0 * np.arctan2(sin_half, cos_half)
+            line_dist = np.linalg.norm(np.cross(rel[0], rel[1]), axis=1) / cage.lengths[ei]
+            close = (cos_half < sin_half) & (line_dist <= EDGE_EPS * cage.scale)  # on the segment
+            on_edge = (ei[close], pi[close])
+
+        np.multiply(num, den, out=tmp)  # sin θ = 2 √(num·den) / both
+        np.sqrt(tmp, out=tmp)
+        tmp *= 2.0
+        tmp /= both
+        np.divide(self.theta, tmp, out=mu)
+        np.multiply(self.theta, tmp, out=tsin)
+        return on_edge
+
+    def _faces(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cage, fq, p, ftmp = self.cage, self.face_q, self.p, self.ftmp
+        for q in range(3):
+            for k in range(3):
+                np.take(self.edge_q[q], cage.face_edges[:, k], axis=0, out=fq[q, k], mode="clip")
+        cos, mu, tsin = fq  # (3, F, P) each: index = corner
+
+        np.take(self.dist, cage.faces[:, 0], axis=0, out=self.dprod, mode="clip")
+        for k in (1, 2):
+            np.take(self.dist, cage.faces[:, k], axis=0, out=ftmp, mode="clip")
+            self.dprod *= ftmp
+        np.matmul(cage.normals, x.T, out=self.vol)
+        np.subtract(cage.offsets[:, None], self.vol, out=self.vol)  # n_f·(v₀ − x) = det[u₀,u₁,u₂] d₀d₁d₂
+        np.abs(self.vol, out=ftmp)
+        np.less_equal(ftmp, self.plane_tol, out=self.in_plane)
+        np.divide(self.dprod, self.vol, out=self.inv_det)
+
+        for k in range(3):  # P_k = cos θ_k − cos θ_{k+1} cos θ_{k+2}
+            np.multiply(cos[(k + 1) % 3], cos[(k + 2) % 3], out=p[k])
+            np.subtract(cos[k], p[k], out=p[k])
+        for k in range(3):  # (θ_k sin θ_k − μ_{k+1} P_{k+2} − μ_{k+2} P_{k+1}) / det
+            out = self.stacked[k]
+            np.multiply(mu[(k + 1) % 3], p[(k + 2) % 3], out=out)
+            np.subtract(tsin[k], out, out=out)
+            np.multiply(mu[(k + 2) % 3], p[(k + 1) % 3], out=ftmp)
+            out -= ftmp
+            out *= self.inv_det
+        if self.in_plane.any():
+            self.stacked[:, self.in_plane] = 0.0
+        w = cage.scatter @ self.stacked.reshape(-1, self.size)
+        w /= self.dist
+        lam = w / w.sum(0)
+
+        winding = np.empty(self.size)
+        if self.with_winding:
+            np.add(cos[0], cos[1], out=ftmp)
+            ftmp += cos[2]
+            ftmp += 1.0
+            ftmp *= self.dprod
+            np.arctan2(self.vol, ftmp, out=ftmp)
+            np.sum(ftmp, axis=0, out=winding)
+            winding /= 2.0 * np.pi
+        return lam, winding
+
+    def _degenerate(self, x, lam, winding, on_edge) -> None:
+        """Overwrite the columns of points on a face, an edge or a vertex (in increasing priority)."""
+        cage = self.cage
+        if self.in_plane.any():
+            fi, pi = np.nonzero(self.in_plane)
+            corners = cage.vertices[cage.faces[fi]] - x[pi][:, None, :]  # (K, 3, 3)
+            bary = np.stack([np.einsum("ki,ki->k", cage.normals[fi], np.cross(corners[:, (k + 1) % 3], corners[:, (k + 2) % 3]))
+                             for k in range(3)], axis=1)
+            bary /= cage.area2[fi, None] ** 2
+            inside = (bary >= -BARY_EPS).all(1)
+            fi, pi, bary = fi[inside], pi[inside], np.clip(bary[inside], 0.0, None)
+            pi, first = np.unique(pi, return_index=True)
+            lam[:, pi] = 0.0
+            lam[cage.faces[fi[first]].T, pi[None]] = (bary[first] / bary[first].sum(1, keepdims=True)).T
+            winding[pi] = 0.5
+        ei, pi = on_edge
+        if ei.size:
+            pi, first = np.unique(pi, return_index=True)
+            a, b = cage.edges[ei[first]].T
+            da, db = self.dist[a, pi], self.dist[b, pi]
+            lam[:, pi] = 0.0
+            lam[a, pi], lam[b, pi] = db / (da + db), da / (da + db)
+            winding[pi] = 0.5
+        at_vertex = self.dist <= VERTEX_EPS * cage.scale
+        cols = np.flatnonzero(at_vertex.any(0))
+        if cols.size:
+            lam[:, cols] = 0.0
+            lam[at_vertex[:, cols].argmax(0), cols] = 1.0
+            winding[cols] = 0.5

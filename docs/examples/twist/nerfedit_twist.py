@@ -1,0 +1,63 @@
+"""Twist deformer: rotate each point about an axis by an angle proportional to its height along that axis.
+
+Edit spec: ``{"twist": {"axis": [0, 0, 1], "degrees": 90, "center": [x, y, z]}, "frames": n}``; the lowest rest
+point (along ``axis``) stays, the highest turns by ``degrees``; ``center`` (a point on the axis) defaults to the
+rest bounding-box centre.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import tyro
+from scipy.spatial.transform import Rotation
+
+from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.errors import NerfEditError
+
+
+@dataclasses.dataclass
+class TwistConfig(DeformerConfig):
+    """Twist about an axis."""
+
+    _target: tyro.conf.Suppress[type] = dataclasses.field(default_factory=lambda: TwistDeformer)
+    anchor: float = 0.0
+    """Height (0 = lowest rest point, 1 = highest) that does not turn."""
+
+
+def _numbers(value, n, where):
+    arr = np.asarray(value, dtype=np.float64) if isinstance(value, list) else np.full(n + 1, np.nan)
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise NerfEditError(f"{where}: expected {n} finite number(s), got {value!r}")
+    return arr
+
+
+class TwistDeformer(Deformer):
+    spec_keys = frozenset({"twist"})
+
+    def bind(self, rest, edit):
+        where = f"{edit.source}: twist"
+        spec = edit.extra.get("twist")
+        if not isinstance(spec, dict) or not {"axis", "degrees"} <= set(spec) <= {"axis", "degrees", "center"}:
+            raise NerfEditError(f"{where}: expected a mapping with axis, degrees and optionally center")
+        axis = _numbers(spec["axis"], 3, f"{where}.axis")
+        if not np.linalg.norm(axis):
+            raise NerfEditError(f"{where}.axis: is the zero vector")
+        self.axis = axis / np.linalg.norm(axis)
+        self.radians = math.radians(_numbers([spec["degrees"]], 1, f"{where}.degrees")[0])
+        box = rest.vertices.min(0), rest.vertices.max(0)
+        self.center = _numbers(spec["center"], 3, f"{where}.center") if "center" in spec else (box[0] + box[1]) / 2
+        height = (rest.vertices - self.center) @ self.axis
+        self.low, self.span = height.min(), max(np.ptp(height), 1e-12)
+        self.rest, self.times = rest.vertices.copy(), edit.times
+
+    def deform_points(self, points, frame):
+        points = np.asarray(points, dtype=np.float64)
+        fraction = ((points - self.center) @ self.axis - self.low) / self.span - self.config.anchor
+        turns = Rotation.from_rotvec(np.outer(self.times[frame] * self.radians * fraction, self.axis))
+        return self.center + turns.apply(points - self.center)
+
+    def deform(self):
+        return np.stack([self.deform_points(self.rest, f) for f in range(len(self.times))])

@@ -1,0 +1,202 @@
+"""The cage deformer plugin: conformance kit, exact cage maps, handles on cage vertices, artifacts, bad input."""
+
+import re
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from deformers.cage import CageConfig, CageDeformer, auto_cage, validate_cage
+from deformers.mean_value import mean_value_coordinates
+from nerfedit_plugin.editspec import parse_edit_spec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.registry import DEFORMERS, discover
+from nerfedit_plugin.testing import check_deformer, default_edit, default_mesh
+
+REST = default_mesh()  # ellipsoid, semi-axes 0.4, 0.5, 1.0
+_sphere = trimesh.creation.icosphere(subdivisions=1)  # inradius 0.93
+# Cage files are PLY (float32 coordinates): dyadic cage vertices and maps keep every deformed cage exact.
+CAGE = SurfaceMesh(np.round(np.asarray(_sphere.vertices) * [0.6, 0.7, 1.3] * 256) / 256, np.asarray(_sphere.faces))
+AFFINE = np.array([[1.25, 0.25, 0.0], [-0.125, 0.75, 0.25], [0.25, 0.0, 1.125]]), np.array([0.25, -0.125, 0.5])
+SIMILARITY = 1.5 * np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]]), np.array([-0.5, 0.125, 0.25])
+
+
+def bind(config, edit, base_dir=".", rest=REST, source="edit.json"):
+    deformer = config.setup()
+    deformer.bind(rest, parse_edit_spec(edit, CageDeformer.spec_keys, source, base_dir))
+    return deformer
+
+
+@pytest.fixture
+def files(tmp_path):
+    """Write cages into tmp_path: ``write(name, mesh)`` returns the file name relative to tmp_path."""
+    def write(name, mesh):
+        mesh.save(tmp_path / name)
+        return name
+    return write
+
+
+# ---- conformance -----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("coordinates", ["mvc", "green"])
+def test_conformance_kit_auto_cage_with_handles(coordinates):
+    check_deformer(CageConfig(coordinates=coordinates))
+
+
+@pytest.mark.parametrize("coordinates", ["mvc", "green"])
+def test_conformance_kit_given_cages(coordinates, files, tmp_path):
+    a, b = AFFINE
+    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ a.T + b)),
+            "frames": 2}
+    check_deformer(CageConfig(coordinates=coordinates), REST, edit, base_dir=tmp_path)
+
+
+def test_registered_as_entry_point():
+    assert discover().config_class(DEFORMERS, "cage") is CageConfig
+
+
+# ---- exact cage maps -------------------------------------------------------------------------------------------
+def test_mvc_reproduces_an_affine_cage_map_in_every_frame(files, tmp_path):
+    a, b = AFFINE
+    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ a.T + b)),
+            "frames": 3}
+    out = bind(CageConfig(), edit, tmp_path).deform()
+    for t, frame in zip([0.0, 0.5, 1.0], out):  # the cage interpolates linearly, so each frame is affine too
+        assert np.abs(frame - ((1 - t) * REST.vertices + t * (REST.vertices @ a.T + b))).max() < 1e-12
+
+
+def test_green_reproduces_a_similarity(files, tmp_path):
+    r, b = SIMILARITY
+    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ r.T + b))}
+    out = bind(CageConfig(coordinates="green"), edit, tmp_path).deform()
+    assert np.abs(out[0] - (REST.vertices @ r.T + b)).max() < 1e-10
+
+
+def test_inward_oriented_cage_is_accepted(files, tmp_path):
+    r, b = SIMILARITY
+    inward = SurfaceMesh(CAGE.vertices, CAGE.faces[:, ::-1])
+    edit = {"cage": files("cage.ply", inward), "deformed_cage": files("moved.ply", inward.with_vertices(CAGE.vertices @ r.T + b))}
+    out = bind(CageConfig(coordinates="green"), edit, tmp_path).deform()
+    assert np.abs(out[0] - (REST.vertices @ r.T + b)).max() < 1e-10
+
+
+# ---- handles on cage vertices ----------------------------------------------------------------------------------
+def test_handles_move_selected_cage_vertices_and_nothing_else():
+    edit = default_edit(REST)
+    deformer = bind(CageConfig(), edit)
+    cage = deformer.rest_cage.vertices
+    idx, targets = parse_edit_spec(edit, CageDeformer.spec_keys).handle_targets(cage)
+    expected = np.repeat(cage[None], 2, axis=0)
+    expected[:, idx] = targets
+    assert np.array_equal(deformer.deformed_cages, expected)
+    assert 0 < len(idx) < len(cage)  # some cage vertices are free and stay put
+    weights = mean_value_coordinates(REST.vertices, cage, deformer.rest_cage.faces)
+    assert np.allclose(deformer.deform(), weights @ expected, rtol=0, atol=1e-12)
+
+
+def test_auto_cage_is_closed_and_encloses_the_mesh():
+    cage = validate_cage(auto_cage(REST), "auto")
+    _, winding = mean_value_coordinates(REST.vertices, cage.vertices, cage.faces, return_winding=True)
+    assert np.all(np.abs(winding) > 0.5)
+
+
+def test_coarse_auto_cage_is_rewrapped_until_it_encloses(capsule):
+    """Simplifying to very few vertices cuts into the mesh; bind wraps again farther out instead of warning."""
+    cage = auto_cage(capsule, max_vertices=40)
+    _, winding = mean_value_coordinates(capsule.vertices, cage.vertices, cage.faces, return_winding=True)
+    assert np.any(np.abs(winding) < 0.5)  # the plain simplified wrap misses vertices
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        deformer = bind(CageConfig(auto_max_vertices=40), default_edit(capsule), rest=capsule)
+    assert deformer.rest_cage.n_vertices <= 40
+    _, winding = mean_value_coordinates(capsule.vertices, deformer.rest_cage.vertices, deformer.rest_cage.faces,
+                                        return_winding=True)
+    assert np.all(np.abs(winding) > 0.5)
+
+
+def test_deform_points_cache_follows_its_input():
+    deformer = bind(CageConfig(), default_edit(REST))
+    out = deformer.deform()
+    a, b = REST.vertices[:20], REST.vertices[20:50]
+    assert np.allclose(deformer.deform_points(a, 1), out[1, :20], rtol=0, atol=1e-12)
+    assert np.allclose(deformer.deform_points(b, 1), out[1, 20:50], rtol=0, atol=1e-12)  # new points: recomputed
+    assert np.allclose(deformer.deform_points(b, 0), out[0, 20:50], rtol=0, atol=1e-12)  # same points, other frame
+
+
+# ---- artifacts -------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("frames, names", [(1, ["cage_rest.ply", "cage_deformed.ply"]),
+                                           (3, ["cage_rest.ply"] + [f"cage_deformed_{i:04d}.ply" for i in range(3)])])
+def test_write_artifacts(frames, names, tmp_path):
+    deformer = bind(CageConfig(), {**default_edit(REST), "frames": frames})
+    written = deformer.write_artifacts(tmp_path / "out")
+    assert [p.name for p in written] == names
+    loaded = [SurfaceMesh.load(p) for p in written]
+    assert np.allclose(loaded[0].vertices, deformer.rest_cage.vertices)
+    assert np.array_equal(loaded[0].faces, deformer.rest_cage.faces)
+    assert np.allclose(np.stack([m.vertices for m in loaded[1:]]), deformer.deformed_cages)
+
+
+# ---- bad input -------------------------------------------------------------------------------------------------
+def _bad_cases(files, tmp_path):
+    a, _ = AFFINE
+    open_cage = SurfaceMesh(CAGE.vertices, CAGE.faces[1:])
+    flipped = CAGE.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    other = trimesh.creation.icosphere(subdivisions=2)
+    retriangulated = CAGE.faces.copy()
+    retriangulated[[0, 1]] = retriangulated[[1, 0]][:, [0, 2, 1]]
+    handles = default_edit(REST)["handles"]
+    lines = (tmp_path / files("nan.obj", CAGE)).read_text().splitlines()
+    lines[next(i for i, line in enumerate(lines) if line.startswith("v "))] = "v nan 0 0"
+    (tmp_path / "nan.obj").write_text("\n".join(lines) + "\n")
+    return [
+        ({"cage": files("open.ply", open_cage), "deformed_cage": files("d.ply", open_cage)},
+         r"cage: .*open\.ply: not closed \(\d+ boundary edges\)"),
+        ({"cage": files("flip.ply", SurfaceMesh(CAGE.vertices, flipped)), "handles": handles},
+         r"cage: .*flip\.ply: not consistently oriented"),
+        ({"cage": files("c.ply", CAGE), "deformed_cage": files("o.ply", SurfaceMesh(other.vertices, other.faces))},
+         r"deformed_cage: .*o\.ply: has 162 vertices, the cage has 42"),
+        ({"cage": files("c.ply", CAGE), "deformed_cage": files("t.ply", SurfaceMesh(CAGE.vertices @ a.T, retriangulated))},
+         r"deformed_cage: .*t\.ply: its triangles differ"),
+        ({"cage": "auto", "deformed_cage": files("c.ply", CAGE)}, r"deformed_cage: needs a cage file"),
+        ({"cage": files("c.ply", CAGE), "deformed_cage": files("c.ply", CAGE), "handles": handles},
+         r"deformed_cage and handles: "),
+        ({"cage": files("c.ply", CAGE)}, r"nothing moves the cage"),
+        ({"cage": 3, "handles": handles}, r"cage: expected \"auto\" or a mesh file"),
+        ({"cage": "missing.ply", "handles": handles}, r"cage: file not found"),
+        ({"cage": "nan.obj", "handles": handles}, r"cage: .*nan\.obj: .*NaN"),
+    ]
+
+
+def test_bad_input_is_rejected_naming_file_and_problem(files, tmp_path):
+    for edit, message in _bad_cases(files, tmp_path):
+        with pytest.raises(NerfEditError, match=r"^edit\.json: " + message):
+            bind(CageConfig(), edit, tmp_path)
+
+
+@pytest.mark.parametrize("option", [{"chunk_size": 0}, {"auto_alpha": 0.0}, {"auto_max_vertices": 3}])
+def test_bad_options_are_rejected(option):
+    (name, value), = option.items()
+    with pytest.raises(NerfEditError, match=rf"cage deformer: {name} must be .*, got {value}"):
+        CageConfig(**option).setup()
+
+
+@pytest.mark.parametrize("coordinates", ["mvc", "green"])
+def test_cage_that_misses_points_warns_and_still_maps_affinely(coordinates, files, tmp_path):
+    small = CAGE.with_vertices(CAGE.vertices * [0.75, 0.75, 0.625])  # the ellipsoid's tips poke out
+    r, b = SIMILARITY
+    edit = {"cage": files("small.ply", small), "deformed_cage": files("moved.ply", small.with_vertices(small.vertices @ r.T + b))}
+    with pytest.warns(UserWarning, match=r"small\.ply: (\d+) of 162 mesh vertices lie outside the cage") as record:
+        out = bind(CageConfig(coordinates=coordinates), edit, tmp_path).deform()
+    outside = int(re.search(r"(\d+) of 162", str(record[0].message)).group(1))
+    _, winding = mean_value_coordinates(REST.vertices, small.vertices, small.faces, return_winding=True)
+    assert outside == np.count_nonzero(np.abs(winding) < 0.5) > 0
+    assert np.abs(out[0] - (REST.vertices @ r.T + b)).max() < 1e-9  # MVC extrapolate affine maps exactly
+
+
+def test_enclosing_cage_does_not_warn(files, tmp_path):
+    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("cage.ply", CAGE)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bind(CageConfig(), edit, tmp_path)
