@@ -10,8 +10,8 @@ Spec: ``{"skeleton": "skeleton.json" | "walk.bvh", "pose": {"<joint>": {"rotate"
 - Pose: each listed joint rotates about its head (axis in the rest / world frame) and then translates; the local
   maps compose down the hierarchy (forward kinematics), so a joint carries its descendants.
   ``frames = n > 1`` interpolates from the rest pose to the pose (slerp from the identity).
-  With a BVH skeleton and no pose the clip is the animation: ``frames = 1`` (the default) plays every BVH frame,
-  ``n > 1`` resamples the clip to n evenly spaced frames (slerp); with a pose the BVH file is only the skeleton.
+  With a BVH skeleton and no pose the clip is the animation: without ``frames`` it plays every BVH frame,
+  ``frames = n`` resamples the clip to n evenly spaced frames (slerp); with a pose the BVH file is only the skeleton.
 - Weights: ``weights.npy (V, joints)`` (columns in file joint order; rows are renormalised to sum 1), else
   automatic bone-heat weights (:mod:`deformers.heat_weights`).
 - :meth:`SkeletonDeformer.deform_points` gives a point off the surface (a tet-proxy vertex) the weights of its
@@ -307,7 +307,7 @@ class SkeletonDeformer(Deformer):
             raise NerfEditError(f"{edit.source}: pose: missing (a JSON skeleton needs a pose)")
         if clip.n_frames == 0:
             raise NerfEditError(f"{edit.source}: pose: missing, and {clip.source} has no motion frames")
-        return clip.local_transforms(None if edit.frames == 1 else edit.frames)
+        return clip.local_transforms(edit.frames if edit.frames_given else None)
 
     @staticmethod
     def _read_weights(path: Path, rest: SurfaceMesh, skeleton: Skeleton) -> np.ndarray:

@@ -5,6 +5,9 @@ subclass, a docstring per field) and registers the *config class* under the entr
 ``[project.entry-points."nerfedit.deformers"] arap = "deformers.arap:ArapConfig"``.
 
 Life cycle: ``deformer = config.setup(); deformer.bind(rest, edit); frames = deformer.deform()``.
+Optional hooks (see docs/plugins.md): ``write_artifacts(out_dir) -> list[Path]`` (the CLI calls it to save cages,
+weights, …) and the classmethods ``identity_edit(edit, rest)`` / ``rigid_edit(edit, rest)`` used by the
+conformance kit ``nerfedit_plugin.testing.check_deformer``.
 """
 
 from __future__ import annotations
@@ -42,7 +45,11 @@ class Deformer:
         raise NotImplementedError
 
     def deform(self) -> np.ndarray:
-        """Deformed vertex positions ``(n_frames, V, 3)`` float64, same vertex order as the rest mesh."""
+        """Deformed vertex positions ``(n_frames, V, 3)`` float64, same vertex order as the rest mesh.
+
+        ``n_frames`` is the spec's ``frames`` when it sets one, else the deformer's own count (1 for a single
+        pose; the clip length for a BVH, the file count for a mesh sequence).
+        """
         raise NotImplementedError
 
     def deform_points(self, points: np.ndarray, frame: int) -> np.ndarray:

@@ -120,6 +120,8 @@ class EditSpec:
     handles: tuple[Handle, ...] = ()
     frames: int = 1
     extra: dict = field(default_factory=dict)
+    frames_given: bool = False
+    """Whether the spec set ``frames`` (a deformer with its own timeline, e.g. a BVH clip, uses it when not)."""
     source: str = "<edit spec>"
     base_dir: Path = Path(".")
 
@@ -250,7 +252,7 @@ def parse_edit_spec(
             transform = None if fixed else _parse_transform(item["transform"], source, f"{key}.transform")
             handles.append(Handle(selection, transform))
     extra = {k: v for k, v in data.items() if k not in ("handles", "frames")}
-    return EditSpec(tuple(handles), frames, extra, source, Path(base_dir))
+    return EditSpec(tuple(handles), frames, extra, "frames" in data, source, Path(base_dir))
 
 
 def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:

@@ -129,7 +129,8 @@ def _frames(config: Any, rest: SurfaceMesh, edit: dict, base_dir: Path | None, w
     out = deformer.deform()
     name = _name(config)
     assert isinstance(out, np.ndarray), f"{name}: deform() on the {what} returned {type(out).__name__}, not an ndarray"
-    expected = (spec.frames, rest.n_vertices, 3)
+    n_frames = spec.frames if spec.frames_given else (out.shape[0] if out.ndim == 3 and len(out) else 1)
+    expected = (n_frames, rest.n_vertices, 3)
     assert out.shape == expected, f"{name}: deform() on the {what} returned shape {out.shape}, expected {expected}"
     assert out.dtype == np.float64, f"{name}: deform() on the {what} returned dtype {out.dtype}, expected float64"
     bad = np.count_nonzero(~np.isfinite(out))
@@ -432,7 +433,7 @@ def check_deform_points(config: Any, rest: SurfaceMesh | None = None, edit: dict
     out = deformer.deform()
     lo, hi = rest.vertices.min(0), rest.vertices.max(0)
     probe = np.random.default_rng(0).uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(64, 3))
-    for f in range(spec.frames):
+    for f in range(len(out)):
         points = rest.vertices.copy()
         mapped = deformer.deform_points(points, f)
         assert np.array_equal(points, rest.vertices), f"{name}: deform_points modified its input"

@@ -393,3 +393,9 @@ def test_vertex_with_only_degenerate_elements_is_named():
     faces = np.vstack([faces, [[n - 3, n - 2, n - 1]]])
     with pytest.raises(NerfEditError, match=f"vertex {n - 2} has no stiffness"):
         ArapSolver(vertices, faces, fixed=[0, n - 3])
+
+
+def test_conformance_kit():
+    from nerfedit_plugin.testing import check_deformer
+
+    check_deformer(ArapConfig())

@@ -52,3 +52,20 @@ def test_wrong_vertex_count_and_connectivity_are_errors(tmp_path, rest):
         bind(tmp_path, rest, {"deformed": "flipped.ply"})
     with pytest.raises(NerfEditError, match="matches no file"):
         bind(tmp_path, rest, {"deformed": "none/*.ply"})
+
+
+def test_conformance_kit(tmp_path, rest):
+    from nerfedit_plugin.testing import check_deformer
+
+    rot = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    rest.with_vertices(rest.vertices * [1.0, 1.3, 0.8]).save(tmp_path / "edited.ply")
+    rest.save(tmp_path / "same.ply")
+    rest.with_vertices(rest.vertices @ rot.T + 0.5).save(tmp_path / "rigid.ply")
+    check_deformer(
+        MeshConfig(),
+        rest,
+        {"deformed": "edited.ply", "frames": 2},
+        base_dir=tmp_path,
+        identity_edit={"deformed": "same.ply"},
+        rigid_edit={"deformed": "rigid.ply"},
+    )
