@@ -1,7 +1,7 @@
 """``nerfedit`` command line (tyro). ``nerfedit SUBCOMMAND --help`` lists the options of each subcommand.
 
 Plugins are chosen in a first pass over the arguments (``--deformer NAME``); the chosen plugin's config then
-appears as its own option group (``--arap.max-iterations``) in the second, tyro-parsed pass.
+appears as the option group ``--deformer-options.*`` in the second, tyro-parsed pass.
 User errors print one line and exit 2; ``--verbose`` shows the traceback.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from pathlib import Path
-from typing import Annotated, Callable
+from typing import Callable
 
 import tyro
 from rich.console import Console
@@ -35,47 +35,48 @@ def _option(argv: list[str], name: str, default: str) -> str:
     return default
 
 
+@dataclasses.dataclass
+class EditArgs:
+    """Deform a mesh with a deformer plugin and lift the deformation into a tet proxy (deformation.npz)."""
+
+    mesh: str
+    """Rest surface mesh (PLY/OBJ/OFF/GLB), or sample:bunny / sample:cow / sample:bone / sample:airplane."""
+    edit: Path
+    """Edit spec (JSON or YAML), see configs/ for examples."""
+    out: Path
+    """Output folder (must not exist or be empty unless --overwrite)."""
+    deformer: str = "arap"
+    """Deformer plugin (entry point group nerfedit.deformers; `nerfedit plugins` lists them)."""
+    lift: LiftMethod = "tet-arap"
+    """How the surface deformation is carried into the tet proxy."""
+    lift_options: LiftConfig = dataclasses.field(default_factory=LiftConfig)
+    proxy: ProxyConfig = dataclasses.field(default_factory=ProxyConfig)
+    cache_dir: Path | None = None
+    """Proxy cache folder (default $NERFEDIT_CACHE or ~/.cache/nerfedit/proxies)."""
+    camera_distance: float | None = None
+    """Mean camera-to-object distance; sets the cage offset (5% of it) when given."""
+    overwrite: bool = False
+    """Replace an existing output folder (only after the new one is complete)."""
+    verbose: bool = False
+    """Show tracebacks for errors."""
+
+
+
 def edit(argv: list[str]) -> None:
     from .edit import run_edit
 
     registry = discover()
     name = _option(argv, "deformer", "arap")
     config_cls = registry.config_class(DEFORMERS, name)
-    choices = tuple(registry.names(DEFORMERS))
 
-    @dataclasses.dataclass
-    class EditArgs:
-        """Deform a mesh with a deformer plugin and lift the deformation into a tet proxy (deformation.npz)."""
-
-        mesh: str
-        """Rest surface mesh (PLY/OBJ/OFF/GLB), or sample:bunny / sample:cow / sample:bone / sample:airplane."""
-        edit: Path
-        """Edit spec (JSON or YAML), see configs/ for examples."""
-        out: Path
-        """Output folder (must not exist or be empty unless --overwrite)."""
-        deformer: Annotated[str, tyro.conf.arg(metavar="{" + ",".join(choices) + "}")] = name
-        """Deformer plugin (entry point group nerfedit.deformers)."""
-        lift: LiftMethod = "tet-arap"
-        """How the surface deformation is carried into the tet proxy."""
-        lift_options: LiftConfig = dataclasses.field(default_factory=LiftConfig)
-        proxy: ProxyConfig = dataclasses.field(default_factory=ProxyConfig)
-        cache_dir: Path | None = None
-        """Proxy cache folder (default $NERFEDIT_CACHE or ~/.cache/nerfedit/proxies)."""
-        camera_distance: float | None = None
-        """Mean camera-to-object distance; sets the cage offset (5% of it) when given."""
-        overwrite: bool = False
-        """Replace an existing output folder (only after the new one is complete)."""
-        verbose: bool = False
-        """Show tracebacks for errors."""
-
-    fields = [(name.replace("-", "_"), config_cls, dataclasses.field(default_factory=config_cls))]
+    fields = [("deformer_options", config_cls, dataclasses.field(default_factory=config_cls))]
     Args = dataclasses.make_dataclass("EditArgs", fields, bases=(EditArgs,))
     Args.__doc__ = EditArgs.__doc__
     args = tyro.cli(Args, args=argv, prog="nerfedit edit", config=TYRO_CONFIG)
     with console.status("editing") as status:
         result = run_edit(
             args.mesh,
-            getattr(args, name.replace("-", "_")),
+            args.deformer_options,
             args.edit,
             args.out,
             lift=args.lift,
@@ -89,11 +90,11 @@ def edit(argv: list[str]) -> None:
         )
     report = result.report
     table = Table(title=f"nerfedit edit → {result.out}")
-    for column in ("frame", "residual max (×bbox)", "residual rms", "inverted tets", "iterations", "seconds"):
+    for column in ("frame", "residual max (×bbox)", "residual rms", "inverted tets", "folded faces", "iterations", "seconds"):
         table.add_column(column, justify="right")
     for i, frame in enumerate(report["per_frame"]):
         table.add_row(
-            str(i), f"{frame['residual_max']:.2e}", f"{frame['residual_rms']:.2e}", str(frame["inverted_tets"]),
+            str(i), f"{frame['residual_max']:.2e}", f"{frame['residual_rms']:.2e}", str(frame["inverted_tets"]), str(frame["flipped_surface_faces"]),
             str(frame["iterations"]), f"{frame['seconds']:.2f}",
         )
     Console().print(table)

@@ -56,8 +56,16 @@ class FrameReport:
     residual_rms: float
     inverted_tets: int
     degenerate_tets: int
+    flipped_surface_faces: int
+    """Surface triangles whose normal turned by more than 90° (a folded edit folds the proxy too)."""
     iterations: int
     seconds: float
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalised triangle normals ``(b − a) × (c − a)``."""
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    return np.cross(b - a, c - a)
 
 
 def knn3_displacements(rest: np.ndarray, moved: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -98,6 +106,7 @@ class Lift:
         self.deformer = deformer
         self.embedding = proxy.embedding_matrix()
         self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
+        self.rest_normals = face_normals(rest.vertices, rest.faces)
         if method == "direct" and (deformer is None or not deformer.supports_points()):
             name = type(deformer).__name__ if deformer is not None else "no deformer"
             raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
@@ -138,11 +147,13 @@ class Lift:
         residual = np.linalg.norm(self.embedding @ deformed - surface, axis=1) / scale
         volumes = tet_signed_volumes(deformed, self.proxy.tets)
         tiny = 1e-9 * np.abs(self.rest_volumes).mean()
+        flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
         return FrameReport(
             residual_max=float(residual.max()),
             residual_rms=float(np.sqrt(np.mean(residual**2))),
             inverted_tets=int(np.count_nonzero(volumes < -tiny)),
             degenerate_tets=int(np.count_nonzero(np.abs(volumes) <= tiny)),
+            flipped_surface_faces=int(np.count_nonzero(flipped)),
             iterations=iterations,
             seconds=seconds,
         )
