@@ -6,6 +6,8 @@ from __future__ import annotations
 import dataclasses
 import enum
 import os
+import types
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +46,47 @@ def to_plain(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [to_plain(v) for v in value]
     return value
+
+
+def _value_from_plain(tp: Any, value: Any) -> Any:
+    """Inverse of :func:`to_plain` for one annotated value (dataclasses, paths, enums, tuples, optionals)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin is typing.Annotated:
+        return _value_from_plain(args[0], value)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        for arg in (a for a in args if a is not type(None)):
+            try:
+                return _value_from_plain(arg, value)
+            except (TypeError, ValueError):
+                continue
+        return value
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        return from_plain(tp, value)
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return tp(value)
+    if isinstance(tp, type) and issubclass(tp, Path):
+        return Path(value)
+    if isinstance(tp, type) and issubclass(tp, np.ndarray):
+        return np.asarray(value)
+    if origin is tuple:
+        items = args[:1] * len(value) if len(args) == 2 and args[1] is Ellipsis else args or (Any,) * len(value)
+        return tuple(_value_from_plain(a, v) for a, v in zip(items, value))
+    if origin is list:
+        return [_value_from_plain(args[0] if args else Any, v) for v in value]
+    return value
+
+
+def from_plain(cls: type, plain: dict) -> Any:
+    """Inverse of :func:`to_plain` for a config dataclass ``cls``: rebuild it from its plain (YAML) form."""
+    try:
+        hints = typing.get_type_hints(cls, include_extras=True)
+    except Exception:  # unresolvable forward references (e.g. classes local to a test function)
+        hints = {}
+    kwargs = {f.name: _value_from_plain(hints.get(f.name, Any), plain[f.name])
+              for f in dataclasses.fields(cls) if f.init and f.name != "_target"}
+    return cls(**kwargs)
 
 
 def write_config(path: str | os.PathLike, config: Any) -> None:

@@ -32,6 +32,10 @@ class Field(torch.nn.Module):
     """
 
     kind: ClassVar[str] = "density"
+    opaque: ClassVar[bool] = False
+    """A solid (density 0 outside, effectively infinite inside, e.g. the ``mesh`` field): :meth:`occupied` is then
+    the exact inside test, and the renderer moves each ray's first inside sample onto the surface crossing by
+    bisection and queries the colour there once, instead of compositing every sample."""
 
     def __init__(self, config: FieldConfig, scene_bbox: torch.Tensor) -> None:
         super().__init__()
@@ -41,6 +45,11 @@ class Field(torch.nn.Module):
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``points (M,3)``, unit ``directions (M,3)`` in canonical space → ``(density_or_sdf (M,), rgb (M,3))``."""
         raise NotImplementedError
+
+    def occupied(self, points: torch.Tensor) -> torch.Tensor | None:
+        """Optional occupancy grid: ``(M,)`` bool, False where canonical ``points (M,3)`` are certainly empty (the
+        renderer then skips them); ``None`` (the default) = no grid, every sample is queried."""
+        return None
 
     def sharpness(self) -> torch.Tensor:
         """NeuS inverse standard deviation ``s`` of the logistic density (``sdf`` fields only)."""
@@ -55,5 +64,16 @@ class Field(torch.nn.Module):
         raise NotImplementedError
 
     def save(self, path: str | os.PathLike) -> None:
-        """Checkpoint (``field.pt``): backend name, config and state dict, written atomically."""
-        raise NotImplementedError
+        """Checkpoint (``field.pt``): backend name, config and state dict, written atomically
+        (:func:`nerfedit_plugin.checkpoint.save_field`)."""
+        from .checkpoint import save_field
+
+        save_field(self, path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Field":
+        """Read a checkpoint written by :meth:`save`; a checkpoint of another backend, a missing or a corrupt file
+        raises :class:`nerfedit_plugin.errors.NerfEditError` naming the file."""
+        from .checkpoint import load_field
+
+        return load_field(path, expected=None if cls is Field else cls)

@@ -31,20 +31,17 @@ from __future__ import annotations
 import ast
 import copy
 import dataclasses
-import enum
 import importlib
 import inspect
 import math
 import textwrap
-import types
-import typing
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import numpy as np
 import yaml
 
-from .config import to_plain
+from .config import from_plain, to_plain
 from .deformer import Deformer, DeformerConfig
 from .editspec import parse_edit_spec
 from .errors import NerfEditError
@@ -209,46 +206,6 @@ def _field_docstrings(cls: type) -> set[str]:
     return documented
 
 
-def _from_plain(tp: Any, value: Any) -> Any:
-    """Inverse of :func:`to_plain` for one annotated value (dataclasses, paths, enums, tuples, optionals)."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin is typing.Annotated:
-        return _from_plain(args[0], value)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        for arg in (a for a in args if a is not type(None)):
-            try:
-                return _from_plain(arg, value)
-            except (TypeError, ValueError):
-                continue
-        return value
-    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
-        return _rebuild(tp, value)
-    if isinstance(tp, type) and issubclass(tp, enum.Enum):
-        return tp(value)
-    if isinstance(tp, type) and issubclass(tp, Path):
-        return Path(value)
-    if isinstance(tp, type) and issubclass(tp, np.ndarray):
-        return np.asarray(value)
-    if origin is tuple:
-        items = args[:1] * len(value) if len(args) == 2 and args[1] is Ellipsis else args or (Any,) * len(value)
-        return tuple(_from_plain(a, v) for a, v in zip(items, value))
-    if origin is list:
-        return [_from_plain(args[0] if args else Any, v) for v in value]
-    return value
-
-
-def _rebuild(cls: type, plain: dict) -> Any:
-    try:
-        hints = typing.get_type_hints(cls, include_extras=True)
-    except Exception:  # unresolvable forward references (e.g. classes local to a test function)
-        hints = {}
-    kwargs = {f.name: _from_plain(hints.get(f.name, Any), plain[f.name])
-              for f in dataclasses.fields(cls) if f.init and f.name != "_target"}
-    return cls(**kwargs)
-
-
 def _resolve_dotted(path: str) -> Any:
     parts = path.split(".")
     for i in range(len(parts) - 1, 0, -1):
@@ -285,7 +242,7 @@ def check_config(config: Any) -> None:
     except yaml.YAMLError as exc:
         raise AssertionError(f"{name}: to_plain(config) is not YAML-safe: {plain!r} ({exc})") from exc
     assert reloaded == plain, f"{name}: to_plain(config) does not survive a YAML round trip: {plain!r} -> {reloaded!r}"
-    rebuilt = to_plain(_rebuild(type(config), plain))
+    rebuilt = to_plain(from_plain(type(config), plain))
     assert rebuilt == plain, f"{name}: config does not round-trip through to_plain: {plain!r} -> {rebuilt!r}"
     assert _resolve_dotted(plain["_target"]) is target, f"{name}: _target {plain['_target']!r} does not import back"
 

@@ -1,0 +1,131 @@
+"""The ``mesh`` field backend: a vertex-coloured triangle mesh used as an exact opaque field.
+
+Inside the (watertight) mesh the density is a large constant, outside it is 0; the colour at any point is the
+barycentric vertex colour of the closest surface point. The shared renderer treats it as a solid (``opaque``): it
+finds each ray's surface crossing by bisection on :meth:`MeshField.occupied` and queries the colour there once,
+so an unedited render reproduces the synthetic generator's unlit render of the mesh, and an edited render measures
+ray bending with no training error. ``fit`` has nothing to learn; ``extract_mesh`` returns the mesh unchanged (same
+vertex order). Point queries run on the CPU (Open3D ``RaycastingScene``); results come back on the points' device.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from ..errors import NerfEditError
+from ..field import Field, FieldConfig
+from ..mesh import SurfaceMesh
+
+
+@dataclasses.dataclass
+class MeshFieldConfig(FieldConfig):
+    """A vertex-coloured mesh as an exact opaque field (instant previews; the oracle of ray bending)."""
+
+    _target: type = dataclasses.field(default_factory=lambda: MeshField)
+    density: float = 1e4
+    """Density returned inside the mesh (volume rendering of it is opaque within a few samples)."""
+    padding: float = 0.05
+    """Scene box of a mesh = its bounding box grown by this fraction of its diagonal on every side."""
+
+
+class MeshField(Field):
+    """Holds a SurfaceMesh as buffers ``vertices (V,3)`` float64, ``faces (F,3)`` int64, ``vertex_colors (V,3)``
+    float32 (part of the checkpoint). Build one with :meth:`from_mesh`; ``MeshFieldConfig().setup(scene_bbox=...)``
+    gives an empty field that :meth:`load_state_dict` fills."""
+
+    kind: ClassVar[str] = "density"
+    opaque: ClassVar[bool] = True
+
+    def __init__(self, config: MeshFieldConfig, scene_bbox: torch.Tensor) -> None:
+        super().__init__(config, scene_bbox)
+        self.register_buffer("vertices", torch.zeros(0, 3, dtype=torch.float64))
+        self.register_buffer("faces", torch.zeros(0, 3, dtype=torch.int64))
+        self.register_buffer("vertex_colors", torch.zeros(0, 3, dtype=torch.float32))
+        self._scene = None
+
+    @classmethod
+    def from_mesh(cls, mesh: SurfaceMesh, config: MeshFieldConfig | None = None) -> "MeshField":
+        """The field of ``mesh`` (must have vertex colours), scene box = bbox ± ``config.padding`` × diagonal."""
+        config = MeshFieldConfig() if config is None else config
+        if mesh.vertex_colors is None:
+            raise NerfEditError("mesh field: the mesh has no vertex colours (see nerfedit_plugin.synthetic.colorize)")
+        if len(mesh.faces) == 0:
+            raise NerfEditError("mesh field: the mesh has no triangles")
+        pad = config.padding * mesh.bbox_diagonal
+        bbox = np.stack([mesh.vertices.min(0) - pad, mesh.vertices.max(0) + pad])
+        field = cls(config, torch.from_numpy(bbox))
+        field.vertices = torch.from_numpy(mesh.vertices.copy())
+        field.faces = torch.from_numpy(mesh.faces.copy())
+        field.vertex_colors = torch.from_numpy(mesh.vertex_colors.astype(np.float32))
+        return field
+
+    @property
+    def mesh(self) -> SurfaceMesh:
+        return SurfaceMesh(
+            self.vertices.cpu().numpy(), self.faces.cpu().numpy(), self.vertex_colors.cpu().numpy().astype(np.float64)
+        )
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        """Adopt the checkpoint's mesh array shapes (an empty field loads any mesh), then load as usual."""
+        for name in ("vertices", "faces", "vertex_colors"):
+            value = state_dict.get(prefix + name)
+            if isinstance(value, torch.Tensor):
+                setattr(self, name, torch.empty_like(value, device=getattr(self, name).device))
+        self._scene = None
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def _raycasting_scene(self):
+        import open3d as o3d
+
+        if self._scene is None:
+            if len(self.faces) == 0:
+                raise NerfEditError("mesh field: no mesh loaded (use MeshField.from_mesh or load a checkpoint)")
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(
+                o3d.core.Tensor(self.vertices.cpu().numpy().astype(np.float32)),
+                o3d.core.Tensor(self.faces.cpu().numpy().astype(np.uint32)),
+            )
+            self._scene = scene
+        return self._scene
+
+    @staticmethod
+    def _open3d_points(points: torch.Tensor):
+        import open3d as o3d
+
+        return o3d.core.Tensor(points.detach().reshape(-1, 3).cpu().numpy().astype(np.float32))
+
+    def occupied(self, points: torch.Tensor) -> torch.Tensor:
+        """Exact inside test ``(M,)`` (Open3D ray-parity occupancy; the mesh must be watertight)."""
+        if len(points) == 0:
+            return torch.zeros(0, dtype=torch.bool, device=points.device)
+        occupancy = self._raycasting_scene().compute_occupancy(self._open3d_points(points)).numpy()
+        return torch.from_numpy(occupancy > 0.5).to(points.device)
+
+    def surface_colors(self, points: torch.Tensor) -> torch.Tensor:
+        """``(M,3)``: barycentric vertex colour of the closest surface point of each point."""
+        if len(points) == 0:
+            return torch.zeros(0, 3, dtype=torch.float32, device=points.device)
+        closest = self._raycasting_scene().compute_closest_points(self._open3d_points(points))
+        tri = self.faces.cpu().numpy()[closest["primitive_ids"].numpy().astype(np.int64)]
+        uv = closest["primitive_uvs"].numpy()
+        colors = self.vertex_colors.cpu().numpy()
+        bary = np.concatenate([1.0 - uv.sum(1, keepdims=True), uv], axis=1)
+        rgb = np.einsum("mk,mkc->mc", bary, colors[tri])
+        return torch.from_numpy(rgb.astype(np.float32)).to(points.device)
+
+    def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Density ``config.density`` inside / 0 outside, colour of the closest surface point (view-independent)."""
+        density = self.occupied(points).to(torch.float32) * self.config.density
+        return density, self.surface_colors(points)
+
+    def fit(self, dataset: Any, **kwargs: Any) -> dict:
+        """Nothing to optimise: the mesh is the field. Returns an empty log."""
+        return {}
+
+    def extract_mesh(self, resolution: int = 256, level: float | None = None) -> SurfaceMesh:
+        """The mesh itself, unchanged (same vertices, order, faces and colours); the arguments are ignored."""
+        return self.mesh

@@ -1,0 +1,85 @@
+"""Occupancy grid: a coarse boolean mask of the cells of a box where a field may be non-empty.
+
+The renderer drops samples whose canonical position lies in an unoccupied cell (the ``Field.occupied`` hook), so
+rays cost little where the scene is empty. The grid is conservative by construction when it is updated from an
+*upper bound* of the density in each cell: a cell is marked empty only if its bound is at most ``threshold``
+(optionally dilated so that empty cells next to occupied ones keep receiving gradients while training).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+
+class OccupancyGrid(torch.nn.Module):
+    """``R³`` equal cells over ``bbox (2,3)``; starts all occupied. Points outside the box are unoccupied."""
+
+    def __init__(self, bbox: torch.Tensor, resolution: int) -> None:
+        super().__init__()
+        if resolution < 1:
+            raise ValueError(f"OccupancyGrid: resolution must be positive, got {resolution}")
+        self.resolution = int(resolution)
+        self.register_buffer("bbox", torch.as_tensor(bbox, dtype=torch.float32).reshape(2, 3).clone())
+        self.register_buffer("mask", torch.ones((resolution,) * 3, dtype=torch.bool))
+        self.register_buffer("hull", torch.ones((resolution,) * 3, dtype=torch.bool))  # cells kept by carve()
+
+    def occupied(self, points: torch.Tensor) -> torch.Tensor:
+        """``(M,)`` bool: the point lies in the box and in an occupied cell (cells are closed on the low side)."""
+        lo, hi = self.bbox
+        u = (points - lo) / (hi - lo) * self.resolution
+        inside = ((u >= 0) & (u <= self.resolution)).all(-1)
+        cell = u.floor().clamp(0, self.resolution - 1).long()
+        return self.mask[cell[:, 0], cell[:, 1], cell[:, 2]] & inside
+
+    @torch.no_grad()
+    def update(self, cell_bound: torch.Tensor, threshold: float, dilation: int = 0, shell: int = 0) -> None:
+        """Occupied ⇔ ``cell_bound > threshold`` (``cell_bound (R,R,R)``: an upper bound of the density in each
+        cell), grown by ``dilation`` cells in every direction (a ``(2d+1)³`` max filter), within the carved hull.
+
+        ``shell > 0`` also empties the deep interior: occupied cells more than ``shell`` cells (Chebyshev) from
+        any free cell. Rays reach them only through at least ``shell`` occupied cells, so a field trained with
+        this grid learns an opaque shell and never needs the interior.
+        """
+        if cell_bound.shape != self.mask.shape:
+            raise ValueError(f"OccupancyGrid.update: expected bounds of shape {tuple(self.mask.shape)}, "
+                             f"got {tuple(cell_bound.shape)}")
+        dense = (cell_bound > threshold).float()[None, None]
+        mask = F.max_pool3d(dense, 2 * dilation + 1, stride=1, padding=dilation) > 0 if dilation > 0 else dense > 0
+        if shell > 0:
+            free = F.pad(1.0 - dense, (shell,) * 6, value=1.0)  # outside the box counts as free
+            mask &= F.max_pool3d(free, 2 * shell + 1, stride=1) > 0
+        self.mask.copy_(mask[0, 0] & self.hull)
+
+    @torch.no_grad()
+    def carve(self, cameras: Any, coverage: torch.Tensor, margin: int = 2) -> None:
+        """Space carving (visual hull): mark empty every cell whose centre projects, in some camera, onto a pixel
+        farther than ``margin`` pixels from any covered pixel (``coverage (C,H,W)`` bool, e.g. alpha > 0).
+        Points inside an object project onto covered pixels in every view, so with ``margin`` ≥ the projected
+        half-diagonal of a cell no cell containing the object is carved. Cells outside a camera's image are kept.
+        """
+        lo, hi = self.bbox
+        r = self.resolution
+        axes = [lo[d] + (torch.arange(r, device=lo.device) + 0.5) * (hi[d] - lo[d]) / r for d in range(3)]
+        centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+        grown = F.max_pool2d(coverage.float()[:, None], 2 * margin + 1, stride=1, padding=margin)[:, 0] > 0
+        keep = torch.ones(len(centres), dtype=torch.bool, device=lo.device)
+        w2c = torch.linalg.inv(cameras.c2w.to(lo.device))
+        for i in range(len(cameras)):
+            local = centres @ w2c[i, :3, :3].T + w2c[i, :3, 3]  # OpenGL camera space: looking down −z
+            depth = -local[:, 2]
+            x = cameras.fx[i] * local[:, 0] / depth + cameras.cx[i]
+            y = -cameras.fy[i] * local[:, 1] / depth + cameras.cy[i]
+            seen = (depth > 0) & (x >= 0) & (x < cameras.width) & (y >= 0) & (y < cameras.height)
+            col = x.clamp(0, cameras.width - 1).long()
+            row = y.clamp(0, cameras.height - 1).long()
+            keep &= ~seen | grown[i, row, col]
+        self.hull &= keep.reshape(r, r, r)
+        self.mask &= self.hull
+
+    @property
+    def fraction(self) -> float:
+        """Fraction of occupied cells."""
+        return float(self.mask.float().mean())

@@ -1,0 +1,176 @@
+"""DeformationField: identity, rigid motions, round trip through a non-rigid lift, the three regions, I/O errors."""
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from nerfedit_plugin.deformation_field import DeformationField
+from nerfedit_plugin.errors import NerfEditError
+
+
+@pytest.fixture(scope="module")
+def proxy(capsule_proxy):
+    """The real tet proxy (pytetwild) of the capsule fixture, with the capsule surface embedded in it."""
+    return capsule_proxy
+
+
+def sample(vertices: np.ndarray, n: int, seed: int = 0, grow: float = 1.2) -> torch.Tensor:
+    lo, hi = vertices.min(0), vertices.max(0)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2 * grow
+    return torch.as_tensor(np.random.default_rng(seed).uniform(centre - half, centre + half, (n, 3)))
+
+
+def surface_points(proxy) -> np.ndarray:
+    """Surface vertices through their embedding: Σ b_i r_i over their rest tets."""
+    return proxy.embedding_matrix() @ proxy.vertices
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_identity_field_is_the_identity(proxy, dtype):
+    field = DeformationField.identity(proxy.vertices, proxy.tets, n_frames=2, dtype=dtype)
+    x = sample(proxy.vertices, 20000)
+    out = field.to_canonical(x, frame=1)
+    assert out.points.dtype == dtype and out.jacobian.shape == (len(x), 3, 3)
+    assert 0.3 < out.inside.double().mean() < 0.9
+    assert not (out.inside & out.empty).any() and not out.empty.any()  # T' = T: nothing is vacated
+    atol = 1e-5 if dtype == torch.float32 else 1e-12
+    assert torch.allclose(out.points.double(), x, atol=atol)
+    assert torch.allclose(out.jacobian.double(), torch.eye(3, dtype=torch.float64).expand(len(x), 3, 3), atol=atol)
+    assert np.array_equal(field.offsets(1), np.zeros_like(proxy.vertices))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_rigid_motion_maps_back_exactly(proxy, dtype):
+    rotation = Rotation.from_rotvec([0.4, -0.3, 0.9]).as_matrix()
+    shift = np.array([0.3, -0.2, 0.5])
+    field = DeformationField(proxy.vertices, proxy.tets, (proxy.vertices @ rotation.T + shift)[None], dtype=dtype)
+    x = sample(proxy.vertices @ rotation.T + shift, 20000, seed=1)
+    out = field.to_canonical(x)
+    inside = out.inside
+    expected = (x.numpy() - shift) @ rotation  # R^T (x - t)
+    atol = 1e-5 if dtype == torch.float32 else 1e-12
+    assert inside.double().mean() > 0.15
+    assert np.allclose(out.points[inside].double().numpy(), expected[inside.numpy()], atol=atol)
+    assert np.allclose(out.jacobian[inside].double().numpy(), rotation.T, atol=atol)
+    # outside T' the map is the identity
+    assert torch.equal(out.points[~inside], x[~inside].to(dtype))
+    assert (out.jacobian[~inside] == torch.eye(3, dtype=dtype)).all()
+
+
+def test_round_trip_of_embedded_surface_under_non_rigid_lift(proxy):
+    """Surface points ride their rest tets through a smooth bend + twist; to_canonical brings them back."""
+    v = proxy.vertices
+
+    def bend(p):
+        angle = 0.6 * p[:, 2]  # twist about z growing with height, plus a bend and a bulge
+        c, s = np.cos(angle), np.sin(angle)
+        x, y = c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]
+        return np.stack([x * (1 + 0.1 * p[:, 2] ** 2) + 0.15 * p[:, 2] ** 2, y, p[:, 2] * 1.1], 1)
+
+    deformed = bend(v)
+    a, b, c, d = (deformed[proxy.tets[:, i]] for i in range(4))
+    assert (np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) > 0).all()  # the map inverts no tet
+    field = DeformationField(v, proxy.tets, deformed[None])
+    surface = surface_points(proxy)
+    moved = proxy.embedding_matrix() @ deformed
+    out = field.to_canonical(torch.as_tensor(moved))
+    assert out.inside.all()
+    scale = np.ptp(v, axis=0).max()
+    assert np.abs(out.points.double().numpy() - surface).max() < 1e-5 * scale
+    # the Jacobian is dx_c/dx: a small step inside the same tet moves x_c by exactly J step (affine per tet)
+    step = torch.full((len(moved), 3), 1e-4 * scale, dtype=torch.float64)
+    nudged = field.to_canonical(torch.as_tensor(moved) + step)
+    predicted = out.points.double() + (out.jacobian.double() @ step[:, :, None])[:, :, 0]
+    error = (nudged.points.double() - predicted).norm(dim=1)
+    assert (error < 1e-6 * scale).double().mean() > 0.9  # the rest crossed into a neighbouring tet
+
+
+def test_regions_mapped_vacated_and_far(proxy):
+    v = proxy.vertices
+    size = np.ptp(v, axis=0)
+    shift = np.array([0.0, 0.0, 0.6 * size[2]])
+    field = DeformationField(v, proxy.tets, (v + shift)[None])
+    centre = (v.min(0) + v.max(0)) / 2
+    points = torch.as_tensor(np.array([
+        centre + [0, 0, 0.5 * size[2]],  # inside T' (and T): mapped back by -shift
+        centre - [0, 0, 0.4 * size[2]],  # inside T only: the space the object left
+        centre + [10 * size[0], 0, 0],  # far away: identity
+    ]))
+    out = field.to_canonical(points)
+    assert out.inside.tolist() == [True, False, False]
+    assert out.empty.tolist() == [False, True, False]
+    assert torch.allclose(out.points[0].double(), points[0] - torch.as_tensor(shift), atol=1e-5)
+    assert torch.equal(out.points[1:], points[1:].float())
+    assert torch.allclose(out.jacobian, torch.eye(3).expand(3, 3, 3), atol=1e-6)  # a translation: J = I
+
+
+def test_degenerate_and_inverted_deformed_tets_do_not_crash(proxy):
+    v, tets = proxy.vertices, proxy.tets
+    deformed = v * [-1.0, 1.0, 1.0]  # a mirror: every tet inverted
+    deformed[tets[0, 1]] = deformed[tets[0, 0]]  # and tet 0 (and its neighbours around that edge) degenerate
+    field = DeformationField(v, tets, deformed[None])
+    x = sample(deformed, 5000, seed=4)
+    out = field.to_canonical(x)
+    assert out.inside.double().mean() > 0.3
+    assert torch.isfinite(out.points).all() and torch.isfinite(out.jacobian).all()
+    mapped = out.inside.numpy()
+    mirrored = x.numpy() * [-1.0, 1.0, 1.0]
+    good = mapped & (np.abs(out.points.double().numpy() - mirrored).max(1) < 1e-5)
+    assert good.sum() > 0.95 * mapped.sum()  # only points in tets touching the collapsed edge differ
+    assert (torch.linalg.det(out.jacobian[out.inside].double()) < 0).double().mean() > 0.95
+
+
+def test_save_load_round_trip(tmp_path, proxy):
+    frames = np.stack([proxy.vertices, proxy.vertices * 1.1])
+    field = DeformationField(proxy.vertices, proxy.tets, frames)
+    path = tmp_path / "edit" / "deformation.npz"
+    field.save(path)
+    loaded = DeformationField.load(path, dtype=torch.float64)
+    assert loaded.n_frames == 2 and loaded.dtype == torch.float64
+    for key in ("rest_vertices", "tets", "deformed_vertices"):
+        assert np.array_equal(getattr(loaded, key), getattr(field, key))
+    assert np.array_equal(loaded.offsets(1), proxy.vertices - proxy.vertices * 1.1)
+    assert [p.name for p in path.parent.iterdir()] == ["deformation.npz"]  # no temporary left behind
+
+
+def test_load_errors_name_file_and_key(tmp_path, proxy):
+    path = tmp_path / "deformation.npz"
+    with pytest.raises(NerfEditError, match="deformation.npz: deformation file not found"):
+        DeformationField.load(path)
+    path.write_bytes(b"not a zip file")
+    with pytest.raises(NerfEditError, match="deformation.npz: not a readable"):
+        DeformationField.load(path)
+    np.savez(path, format_version=1, rest_vertices=proxy.vertices, deformed_vertices=proxy.vertices[None])
+    with pytest.raises(NerfEditError, match="deformation.npz: missing key 'tets'"):
+        DeformationField.load(path)
+    np.savez(path, format_version=1, rest_vertices=proxy.vertices, tets=proxy.tets + 10**6,
+             deformed_vertices=proxy.vertices[None])
+    with pytest.raises(NerfEditError, match="deformation.npz: tets: vertex index out of range"):
+        DeformationField.load(path)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda r, t, d: (r[:, :2], t, d), "rest_vertices: expected shape"),
+    (lambda r, t, d: (r, t[:, :3], d), "tets: expected shape"),
+    (lambda r, t, d: (r, t, d[:, :-1]), "deformed_vertices: expected shape"),
+    (lambda r, t, d: (r, t, np.where(np.arange(d.size).reshape(d.shape) == 7, np.nan, d)), "finite"),
+    (lambda r, t, d: (r, t - 1, d), "out of range"),
+    (lambda r, t, d: (r, t + 0.5, d), "integer"),
+])
+def test_constructor_validates(proxy, change, message):
+    args = change(proxy.vertices, proxy.tets, proxy.vertices[None].copy())
+    with pytest.raises(NerfEditError, match=message):
+        DeformationField(*args)
+    with pytest.raises(NerfEditError, match="frame 3 out of range"):
+        DeformationField.identity(proxy.vertices, proxy.tets).to_canonical(torch.zeros(1, 3), frame=3)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_to_canonical_matches_cpu(proxy):
+    deformed = proxy.vertices * [1.0, 1.2, 0.9] + 0.1
+    x = sample(deformed, 5000, seed=5)
+    cpu = DeformationField(proxy.vertices, proxy.tets, deformed[None]).to_canonical(x)
+    gpu = DeformationField(proxy.vertices, proxy.tets, deformed[None], device="cuda").to_canonical(x.cuda())
+    assert torch.equal(gpu.inside.cpu(), cpu.inside) and torch.equal(gpu.empty.cpu(), cpu.empty)
+    assert torch.allclose(gpu.points.cpu(), cpu.points, atol=1e-5)

@@ -1,0 +1,159 @@
+"""TetLocator: the grid answer equals brute force exactly (tet ids and barycentric bits), no cracks, edge cases."""
+
+import numpy as np
+import pytest
+import torch
+
+from nerfedit_plugin.locate import EPS, TetLocator, locate_brute_force
+
+
+def cube_grid_tets(n: int, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Conforming tet mesh of an n^3 grid of cubes (6 Kuhn tets per cube), dyadic coordinates."""
+    g = np.arange(n + 1) * (size / n)
+    vertices = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    index = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
+    corner = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    tets = []
+    for perm in ([0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]):
+        path = [corner.copy()]
+        for axis in perm:  # walk from corner (0,0,0) to (1,1,1) one axis at a time
+            step = path[-1].copy()
+            step[:, axis] += 1
+            path.append(step)
+        tets.append(np.stack([index[p[:, 0], p[:, 1], p[:, 2]] for p in path], 1))
+    return vertices.astype(np.float64), np.concatenate(tets)
+
+
+def reorient(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
+    negative = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) < 0
+    tets = tets.copy()
+    tets[negative] = tets[negative][:, [1, 0, 2, 3]]
+    return tets
+
+
+@pytest.fixture(scope="session")
+def sphere_tets():
+    """A real pytetwild tet mesh (~1.6k tets) of an icosphere, positively oriented."""
+    import pytetwild
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    vertices, tets = pytetwild.tetrahedralize(
+        mesh.vertices, mesh.faces.astype(np.int32), edge_length_fac=0.07, optimize=True, epsilon=5e-3, quiet=True)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    return vertices, reorient(vertices, np.asarray(tets, dtype=np.int64))
+
+
+def probe_points(vertices: np.ndarray, tets: np.ndarray, n_random: int, seed: int = 0) -> np.ndarray:
+    """Random points in the enlarged bbox, every vertex, interior-face centroids, edge midpoints, far points."""
+    rng = np.random.default_rng(seed)
+    lo, hi = vertices.min(0), vertices.max(0)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2 * 1.15
+    faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]], tets[:, [0, 1, 2]]]), 1)
+    faces = np.unique(faces, axis=0)
+    edges = np.unique(np.sort(np.concatenate([tets[:, [i, j]] for i in range(4) for j in range(i + 1, 4)]), 1), axis=0)
+    return np.concatenate([
+        rng.uniform(centre - half, centre + half, (n_random, 3)),
+        vertices,
+        vertices[faces].mean(1),
+        vertices[edges].mean(1),
+        centre + half * 10 * rng.standard_normal((50, 3)),
+    ])
+
+
+def assert_same_as_brute_force(vertices, tets, points, dtype, **kwargs):
+    locator = TetLocator(vertices, tets, dtype=dtype, **kwargs)
+    tet, bary = locator.locate(torch.as_tensor(points))
+    ref_tet, ref_bary = locate_brute_force(vertices, tets, torch.as_tensor(points), dtype=dtype)
+    assert torch.equal(tet, ref_tet), f"{int((tet != ref_tet).sum())} of {len(tet)} points differ"
+    assert torch.equal(bary.contiguous(), ref_bary)  # bit for bit, and 0 where -1
+    return tet, bary
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_grid_equals_brute_force_on_pytetwild_mesh(sphere_tets, dtype):
+    vertices, tets = sphere_tets
+    points = probe_points(vertices, tets, 6000)
+    tet, bary = assert_same_as_brute_force(vertices, tets, points, dtype, chunk=5000)
+    inside = tet >= 0
+    assert 0.2 < inside.double().mean() < 0.9
+    # barycentrics reproduce the point and satisfy the containment rule
+    corners = torch.as_tensor(vertices)[torch.as_tensor(tets)[tet[inside]]]
+    rebuilt = (bary[inside].double()[:, :, None] * corners).sum(1)
+    tolerance = 1e-5 if dtype == torch.float32 else 1e-12
+    assert torch.allclose(rebuilt, torch.as_tensor(points)[inside], atol=tolerance)
+    assert bary[inside].min() >= -EPS[dtype]
+
+
+@pytest.mark.parametrize("dtype, settings", [
+    (torch.float32, {}),
+    (torch.float64, {}),
+    (torch.float32, {"cells_per_tet": 0.3, "rounds": 1}),  # coarse cells, long lists: mostly the full scan
+    (torch.float32, {"cells_per_tet": 16.0, "rounds": 6}),
+])
+def test_grid_equals_brute_force_on_cube_grid(dtype, settings):
+    vertices, tets = cube_grid_tets(5)
+    points = probe_points(vertices, tets, 3000, seed=1)
+    tet, _ = assert_same_as_brute_force(vertices, tets, points, dtype, **settings)
+    # shared vertices, faces and edges are exactly representable here: they are all found (no cracks) and
+    # the smallest index among the tets sharing them wins
+    n_random = 3000
+    on_mesh = tet[n_random:-50]
+    assert (on_mesh >= 0).all()
+    assert (tet[-50:] == -1).all()
+
+
+def test_points_deep_inside_interior_tets_are_never_lost(sphere_tets):
+    vertices, tets = sphere_tets
+    rng = np.random.default_rng(2)
+    weights = rng.dirichlet(np.ones(4), size=len(tets))
+    points = (weights[:, :, None] * vertices[tets]).sum(1)
+    tet, _ = TetLocator(vertices, tets).locate(torch.as_tensor(points))
+    assert (tet >= 0).all()
+    # a point strictly inside tet t (valid mesh) is located in t
+    strict = weights.min(1) > 1e-3
+    assert torch.equal(tet[torch.as_tensor(strict)], torch.arange(len(tets))[torch.as_tensor(strict)])
+
+
+def test_overlapping_and_degenerate_tets_follow_the_rule():
+    """Two overlapping copies of a grid (so no tet is 'safe') plus zero-volume tets: still brute-force exact."""
+    vertices, tets = cube_grid_tets(3)
+    shifted = vertices + [0.13, 0.05, -0.07]
+    flat = np.array([[0, 1, 2, 3]]) + 2 * len(vertices)  # four collinear points: zero volume
+    line = np.linspace(0, 1, 4)[:, None] * [1.0, 1.0, 0.0]
+    all_vertices = np.concatenate([vertices, shifted, line])
+    all_tets = np.concatenate([tets + len(vertices), tets, flat])  # the shifted copy has the lower indices
+    points = probe_points(all_vertices, all_tets[:-1], 3000, seed=3)
+    tet, _ = assert_same_as_brute_force(all_vertices, all_tets, points, torch.float32)
+    assert (tet != len(all_tets) - 1).all()
+    both = torch.as_tensor(((points > [0.13, 0.05, 0.0]) & (points < [1.0, 1.0, 0.93])).all(1))  # the overlap
+    assert (tet[both] < len(tets)).all()  # where the copies overlap, the lower-index copy wins
+
+
+def test_outside_nan_and_empty_inputs():
+    vertices, tets = cube_grid_tets(2)
+    locator = TetLocator(vertices, tets)
+    points = torch.tensor([[-5.0, 0.5, 0.5], [0.5, 0.5, 7.0], [float("nan"), 0.5, 0.5], [float("inf"), 0, 0],
+                           [0.5, 0.5, 0.5]])
+    tet, bary = locator.locate(points)
+    assert tet[:4].tolist() == [-1] * 4 and tet[4] >= 0
+    assert (bary[:4] == 0).all()
+    tet, bary = locator.locate(torch.zeros((0, 3)))
+    assert tet.shape == (0,) and bary.shape == (0, 4)
+
+
+def test_all_degenerate_mesh_locates_nothing():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0.0]])
+    tet, _ = TetLocator(vertices, np.array([[0, 1, 2, 3]])).locate(torch.rand(10, 3))
+    assert (tet == -1).all()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_matches_cpu(sphere_tets):
+    vertices, tets = sphere_tets
+    points = torch.as_tensor(probe_points(vertices, tets, 5000))
+    cpu = TetLocator(vertices, tets).locate(points)
+    gpu = TetLocator(torch.as_tensor(vertices).cuda(), tets).locate(points.cuda())
+    assert torch.equal(gpu[0].cpu(), cpu[0])
+    assert torch.allclose(gpu[1].cpu(), cpu[1], atol=1e-6)

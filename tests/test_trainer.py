@@ -1,0 +1,70 @@
+"""The shared training loop: PSNR, budgets, the foreground ray pool, optimiser rebuilds after parameter swaps."""
+
+import math
+
+import pytest
+import torch
+
+from nerfedit_plugin.cameras import Cameras, look_at
+from nerfedit_plugin.datasets import Dataset
+from nerfedit_plugin.field import Field, FieldConfig
+from nerfedit_plugin.trainer import TrainerConfig, _ray_pool, psnr, train
+
+
+def test_psnr_of_known_errors():
+    assert psnr(0.01) == pytest.approx(20.0)
+    assert psnr(torch.tensor(1e-3)) == pytest.approx(30.0)
+
+
+class ConstantField(Field):
+    """A box of constant density and one learnable colour: training must drive the colour to the target."""
+
+    def __init__(self, config, scene_bbox):
+        super().__init__(config, scene_bbox)
+        self.logit = torch.nn.Parameter(torch.zeros(3))
+        self.swaps = 0
+
+    def query(self, points, directions):
+        return torch.full((len(points),), 50.0), torch.sigmoid(self.logit).expand(len(points), 3)
+
+    def swap(self):  # replace the parameter, as a coarse-to-fine grid does
+        self.logit = torch.nn.Parameter(self.logit.detach().clone())
+        self.swaps += 1
+
+
+def flat_dataset(color=(0.2, 0.6, 0.9), size=8, alpha=None):
+    eye = torch.tensor([[0.0, -3.0, 0.0], [3.0, 0.0, 0.0]])
+    cameras = Cameras.from_fov(look_at(eye, torch.zeros(2, 3)), size, size, 0.3)
+    images = torch.tensor(color).expand(2, size, size, 3).clone()
+    return Dataset(images, cameras, "train", [], (1.0, 1.0, 1.0), torch.tensor([[-0.5] * 3, [0.5] * 3]), alpha)
+
+
+def test_training_fits_the_colour_and_honours_the_step_budget():
+    data = flat_dataset()
+    field = ConstantField(FieldConfig(), data.scene_bbox)
+
+    def callback(step):
+        if step == 3:
+            field.swap()
+            return True
+        return False
+
+    config = TrainerConfig(max_steps=150, max_seconds=60, batch_rays=64, n_samples=8, eval_every_seconds=0,
+                           log_every=10, progress=False)
+    log = train(field, data, config, param_groups=lambda: [{"params": [field.logit], "lr": 0.1}],
+                callback=callback, eval_dataset=data)
+    assert log["steps"] == 150 and field.swaps == 1
+    assert [t for t, _ in log["eval"]][0] == 0.0 and len(log["eval"]) == 2
+    assert log["eval"][-1][1] > 35.0 > log["eval"][0][1]  # the constant colour is learnt (sigmoid(0) = 0.5 at start)
+    assert log["step"] == sorted(log["step"]) and all(math.isfinite(p) for p in log["psnr"])
+    torch.testing.assert_close(torch.sigmoid(field.logit), torch.tensor([0.2, 0.6, 0.9]), atol=0.01, rtol=0)
+
+
+def test_ray_pool_keeps_covered_pixels_and_drops_far_background():
+    alpha = torch.zeros(2, 8, 8)
+    alpha[0, 3, 3] = 0.5
+    pool = _ray_pool(flat_dataset(alpha=alpha), margin=1)
+    expected = {0 * 64 + r * 8 + c for r in (2, 3, 4) for c in (2, 3, 4)}
+    assert set(pool.tolist()) == expected
+    assert len(_ray_pool(flat_dataset(alpha=alpha), margin=-1)) == 128
+    assert len(_ray_pool(flat_dataset(), margin=3)) == 128  # no alpha: every pixel
