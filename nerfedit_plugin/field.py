@@ -37,6 +37,11 @@ class Field(torch.nn.Module):
     the exact inside test, and the renderer moves each ray's first inside sample onto the surface crossing by
     bisection and queries the colour there once, instead of compositing every sample."""
 
+    data: ClassVar[str] = "images"
+    """What ``nerfedit train --data`` names: ``"images"`` (a dataset folder; the field is built with
+    ``config.setup(scene_bbox=...)`` and optimised with :meth:`fit`) or ``"mesh"`` (a mesh file; the field is built
+    with the classmethod ``from_mesh(mesh: SurfaceMesh, config)`` and has nothing to fit)."""
+
     def __init__(self, config: FieldConfig, scene_bbox: torch.Tensor) -> None:
         super().__init__()
         self.config = config

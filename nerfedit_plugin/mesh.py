@@ -50,6 +50,22 @@ class SurfaceMesh:
         """Same connectivity and colours, new positions."""
         return SurfaceMesh(vertices, self.faces, self.vertex_colors)
 
+    def largest_component(self) -> "SurfaceMesh":
+        """The connected part (through shared vertices) with the most faces; unused vertices dropped, order kept."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        n, f = self.n_vertices, len(self.faces)
+        rows = np.repeat(np.arange(f), 3)
+        incidence = coo_matrix((np.ones(3 * f), (rows, self.faces.reshape(-1))), shape=(f, n)).tocsr()
+        _, labels = connected_components(incidence @ incidence.T, directed=False)
+        faces = self.faces[labels == np.bincount(labels).argmax()]
+        used = np.unique(faces)
+        remap = np.full(n, -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        colors = None if self.vertex_colors is None else self.vertex_colors[used]
+        return SurfaceMesh(self.vertices[used], remap[faces], colors)
+
     # ---- conversions -------------------------------------------------------------------------
     def to_trimesh(self):
         import trimesh

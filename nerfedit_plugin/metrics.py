@@ -18,6 +18,9 @@ import torch
 import torch.nn.functional as F
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
+from .datasets import composite, read_image
+from .errors import NerfEditError
+
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)
 #: (stride, padding, max-pool before this conv) of AlexNet's five convolutions
@@ -73,7 +76,7 @@ def lpips(pred: np.ndarray, gt: np.ndarray) -> float | None:
     if weights is None:
         return None
     convs, lins = weights
-    to_tensor = lambda im: torch.from_numpy(np.ascontiguousarray(im, dtype=np.float32)).permute(2, 0, 1)[None]
+    to_tensor = lambda im: torch.from_numpy(np.array(im, dtype=np.float32)).permute(2, 0, 1)[None]
     f0, f1 = _features(to_tensor(pred), convs), _features(to_tensor(gt), convs)
     return float(sum(((a - b).pow(2) * w.view(1, -1, 1, 1)).sum(1).mean() for a, b, w in zip(f0, f1, lins)))
 
@@ -81,3 +84,29 @@ def lpips(pred: np.ndarray, gt: np.ndarray) -> float | None:
 def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float | None]:
     """All metrics of one prediction against its ground truth."""
     return {"psnr": psnr(pred, gt), "ssim": ssim(pred, gt), "lpips": lpips(pred, gt)}
+
+
+def evaluate_folders(pred_dir: str | Path, gt_dir: str | Path, background=(1.0, 1.0, 1.0)) -> dict:
+    """Metrics of every ``*.png`` in ``gt_dir`` against the same-named image in ``pred_dir`` (RGBA composited over
+    ``background``): ``{"images": {name: metrics}, "mean": metrics}``. A missing prediction or a size mismatch is an
+    error naming the file."""
+    pred_dir, gt_dir = Path(pred_dir), Path(gt_dir)
+    for folder in (pred_dir, gt_dir):
+        if not folder.is_dir():
+            raise NerfEditError(f"{folder}: not a folder of images")
+    names = sorted(p.name for p in gt_dir.glob("*.png"))
+    if not names:
+        raise NerfEditError(f"{gt_dir}: no PNG images to compare against")
+    per_image = {}
+    for name in names:
+        if not (pred_dir / name).is_file():
+            raise NerfEditError(f"{pred_dir / name}: missing (the ground truth {gt_dir / name} has no prediction)")
+        pred, gt = (composite(*read_image(folder / name), background) for folder in (pred_dir, gt_dir))
+        if pred.shape != gt.shape:
+            raise NerfEditError(f"{pred_dir / name}: image is {pred.shape[1]}x{pred.shape[0]}, the ground truth "
+                                f"is {gt.shape[1]}x{gt.shape[0]}")
+        per_image[name] = image_metrics(pred, gt)
+    keys = next(iter(per_image.values())).keys()
+    mean = {k: (None if any(m[k] is None for m in per_image.values())
+                else float(np.mean([m[k] for m in per_image.values()]))) for k in keys}
+    return {"images": per_image, "mean": mean}

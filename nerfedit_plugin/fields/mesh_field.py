@@ -39,6 +39,7 @@ class MeshField(Field):
 
     kind: ClassVar[str] = "density"
     opaque: ClassVar[bool] = True
+    data: ClassVar[str] = "mesh"
 
     def __init__(self, config: MeshFieldConfig, scene_bbox: torch.Tensor) -> None:
         super().__init__(config, scene_bbox)
