@@ -52,7 +52,7 @@ def _edges(vertices: np.ndarray, tets_or_faces: np.ndarray, color: Sequence[floa
 def _handles(spec_path: Path, deformer: str, rest: SurfaceMesh):
     import open3d as o3d
 
-    spec = load_edit_spec(spec_path, discover().config_class(DEFORMERS, deformer)._target.spec_keys)
+    spec = load_edit_spec(spec_path, discover().config_class(DEFORMERS, deformer)()._target.spec_keys)
     points, colors = [], []
     for handle in spec.handles:
         idx = handle.selection.indices(rest.vertices, spec.source)
@@ -123,6 +123,7 @@ def screenshot(geometries: list, path: str | os.PathLike, width: int = 960, heig
         view = vis.get_view_control()
         view.set_up(list(up))
         view.set_front(list(front))
+        view.set_zoom(0.7)
         vis.get_render_option().point_size = 6.0
         vis.poll_events()
         vis.update_renderer()

@@ -15,8 +15,14 @@ def capsule() -> SurfaceMesh:
 
 
 @pytest.fixture(scope="session")
-def capsule_proxy(capsule, tmp_path_factory):
+def proxy_cache(tmp_path_factory):
+    """One proxy cache for the session: tests that edit the same mesh build its tet proxy once."""
+    return tmp_path_factory.mktemp("proxy-cache")
+
+
+@pytest.fixture(scope="session")
+def capsule_proxy(capsule, proxy_cache):
     from nerfedit_plugin.proxy import ProxyConfig, cached_proxy
 
-    proxy, _ = cached_proxy(capsule, ProxyConfig(), tmp_path_factory.mktemp("proxy-cache"))
+    proxy, _ = cached_proxy(capsule, ProxyConfig(), proxy_cache)
     return proxy

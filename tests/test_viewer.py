@@ -1,0 +1,81 @@
+"""``nerfedit view --screenshot``: a real offscreen Open3D render of an edit (rest left, edit right), and its
+errors; the turntable cameras and GIF writer of the renderer's image output."""
+
+import json
+
+import numpy as np
+import pytest
+import skimage.io
+import torch
+from PIL import Image
+
+from nerfedit_plugin.cli import main
+from nerfedit_plugin.viewer import edit_geometries
+from nerfedit_plugin.views import turntable_cameras, write_gif
+
+EDIT = {
+    "handles": [
+        {"select": {"box": {"min": [-1, -1, -1.1], "max": [1, 1, -0.6]}}, "fixed": True},
+        {"select": {"box": {"min": [-1, -1, 0.6], "max": [1, 1, 1.1]}}, "transform": {"translate": [0, 0.3, 0]}},
+    ]
+}
+
+
+@pytest.fixture(scope="module")
+def edit_dir(capsule, proxy_cache, tmp_path_factory):
+    root = tmp_path_factory.mktemp("view")
+    capsule.save(root / "capsule.ply")
+    (root / "edit.json").write_text(json.dumps(EDIT))
+    assert main(["edit", "--mesh", str(root / "capsule.ply"), "--edit", str(root / "edit.json"),
+                 "--out", str(root / "edit"), "--cache-dir", str(proxy_cache)]) == 0
+    return root / "edit"
+
+
+def test_layers_of_an_edit(edit_dir, capsule):
+    import open3d as o3d
+
+    kinds = [type(g) for g in edit_geometries(capsule, edit_dir)]
+    assert kinds.count(o3d.geometry.TriangleMesh) == 2  # rest and deformed mesh
+    assert o3d.geometry.LineSet in kinds and o3d.geometry.PointCloud in kinds  # deformed proxy, handles
+    handles = next(g for g in edit_geometries(capsule, edit_dir, layers=["handles"]))
+    selected = (capsule.vertices[:, 2] < -0.6) | (capsule.vertices[:, 2] > 0.6)
+    assert len(handles.points) == selected.sum()
+    deformed = edit_geometries(capsule, edit_dir, layers=["deformed"])[0]
+    assert np.asarray(deformed.vertices)[:, 0].min() > capsule.vertices[:, 0].max()  # shifted to the right
+
+
+def test_screenshot_renders_rest_and_edit_side_by_side(edit_dir, capsule, tmp_path):
+    shot = tmp_path / "view.png"
+    assert main(["view", "--edit", str(edit_dir), "--screenshot", str(shot), "--width", "320", "--height", "200"]) == 0
+    image = skimage.io.imread(shot)[..., :3].astype(float)
+    assert image.shape == (200, 320, 3)
+    drawn = (np.abs(image - image[0, 0]).sum(-1) > 30).any(0)  # columns holding geometry
+    assert drawn[:160].any() and drawn[160:].any()  # rest on the left, edit on the right
+
+
+def test_view_errors(edit_dir, tmp_path, capsys):
+    assert main(["view", "--edit", str(tmp_path), "--mesh", "sample:bone", "--screenshot", str(tmp_path / "a.png")]) == 2
+    assert "not an edit folder" in capsys.readouterr().err
+    assert main(["view", "--edit", str(edit_dir), "--show", "tets", "--screenshot", str(tmp_path / "a.png")]) == 2
+    assert "unknown layer" in capsys.readouterr().err
+    assert not (tmp_path / "a.png").exists()
+
+
+def test_turntable_cameras_circle_the_box_and_look_at_its_centre():
+    box = torch.tensor([[-1.0, -0.5, 0.0], [1.0, 0.5, 2.0]])
+    cameras = turntable_cameras(box, 8, 16, distance=3.0)
+    centre = box.mean(0)
+    eyes = cameras.c2w[:, :3, 3]
+    radius = float(torch.linalg.norm(box[1] - box[0]) / 2)
+    torch.testing.assert_close(torch.linalg.norm(eyes - centre, dim=1), torch.full((8,), 3.0 * radius))
+    forward = -cameras.c2w[:, :3, 2]
+    torch.testing.assert_close(forward, torch.nn.functional.normalize(centre - eyes, dim=1), atol=1e-6, rtol=0)
+    assert torch.allclose(eyes[:, 2], eyes[0, 2])  # one height: a circle
+
+
+def test_gif_holds_every_frame(tmp_path):
+    frames = [np.full((8, 8, 3), v, dtype=np.float32) for v in (0.0, 0.5, 1.0)]
+    with Image.open(write_gif(tmp_path / "t.gif", frames)) as gif:
+        assert gif.n_frames == 3
+        gif.seek(1)
+        assert abs(np.asarray(gif.convert("RGB")).astype(int).mean() - 128) <= 1
