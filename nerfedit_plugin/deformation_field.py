@@ -13,8 +13,15 @@ Degenerate and inverted deformed tets never crash: point location skips tets of 
 located (barycentrics do not depend on orientation) and map through their affine map, whose Jacobian then has
 a negative determinant; where inverted tets overlap others, the smallest tet index wins.
 
+Cost. Only points in a marked cell of a per-frame ``NEAR_CELLS``³ grid over the boxes of T and T' (a cell is
+marked when the box inside which the point locator of T or T' may accept a point touches it, padded by 10⁻³ of a
+cell, far beyond the float error of the cell computation) go through point location; the others are outside both
+proxies (identity). Points located in T' skip the rest-proxy lookup. :meth:`DeformationField.bend` returns the
+deformed tet of each point instead of a ``(M,3,3)`` Jacobian: callers gather per-tet matrices
+(:meth:`DeformationField.jacobian`) only for the points they keep.
+
 Saved as ``deformation.npz`` (``format_version``, ``rest_vertices``, ``tets``, ``deformed_vertices``); it loads
-without the deformer that made it. Locators are built lazily (one per frame on T', one on T) and cached.
+without the deformer that made it. Locators and grids are built lazily (one per frame on T', one on T) and cached.
 """
 
 from __future__ import annotations
@@ -28,10 +35,20 @@ import torch
 
 from .atomic import atomic_path
 from .errors import NerfEditError
-from .locate import TetLocator
+from .locate import TetLocator, expand_ranges
 
 FORMAT_VERSION = 1
 KEYS = ("rest_vertices", "tets", "deformed_vertices")
+
+
+NEAR_CELLS = 64
+"""Cells per axis of the per-frame grid that tells which points need point location."""
+
+
+class BentPoints(NamedTuple):
+    points: torch.Tensor  # (M,3) x_c (x itself where not inside T')
+    tet: torch.Tensor  # (M,) int64: the deformed tet containing x, -1 outside T'
+    empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
 
 
 class CanonicalPoints(NamedTuple):
@@ -67,8 +84,44 @@ def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray,
 
 class _Frame(NamedTuple):
     locator: TetLocator
-    rest_rows: torch.Tensor  # (K,12): r0, then rest edges r1-r0, r2-r0, r3-r0 (columns of R, row-major)
-    jacobian: torch.Tensor  # (K,3,3): A_t
+    rest_columns: torch.Tensor  # (12,K): r0, then rest edges r1-r0, r2-r0, r3-r0 (columns of R, row-major)
+    jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
+    near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
+
+
+def _near_grid(locators: tuple[TetLocator, ...]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(scale (3,), offset (3,), mask ((C+2)³,) bool)``, ``C = NEAR_CELLS``: cell coordinates ``u = x scale +
+    offset`` lie in ``[1, C+1)`` over the box of the locators' usable tets; the border layer (cells 0 and C+1)
+    takes every point outside it. A cell is marked when some usable tet's acceptance box (padded by 10⁻³ cell)
+    touches it: points in unmarked cells are outside every tet of every locator."""
+    lo, hi = zip(*(locator.boxes() for locator in locators))
+    lo, hi = torch.cat(lo).to(torch.float64), torch.cat(hi).to(torch.float64)
+    dtype, device, side = locators[0].dtype, lo.device, NEAR_CELLS + 2
+    if len(lo) == 0:
+        return torch.ones(3, dtype=dtype, device=device), torch.zeros(3, dtype=dtype, device=device), \
+            torch.zeros(side**3, dtype=torch.bool, device=device)
+    origin, extent = lo.amin(0), (hi.amax(0) - lo.amin(0)).clamp_min(1e-12)
+    scale = (NEAR_CELLS / extent).to(dtype)
+    offset = (1.0 - origin * scale.to(torch.float64)).to(dtype)
+    scale64, offset64 = scale.to(torch.float64), offset.to(torch.float64)  # the values points are mapped with
+    first = (lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
+    span = (hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1) - first + 1
+    count = span.prod(1)
+    owner, local = expand_ranges(count)
+    sy, sz = span[owner, 1], span[owner, 2]
+    ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
+    mask = torch.zeros(side**3, dtype=torch.bool, device=device)
+    mask[(ijk * torch.tensor([side * side, side, 1], device=device)).sum(1)] = True
+    return scale, offset, mask
+
+
+def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+    """``(M,)`` bool: the points lie in a marked cell of :func:`_near_grid` (NaN points: no)."""
+    scale, offset, mask = grid
+    side = NEAR_CELLS + 2
+    u = torch.addcmul(offset, x, scale).clamp_(0.0, side - 1.0).floor_()
+    strides = torch.tensor([side * side, side, 1.0], dtype=u.dtype, device=u.device)  # ids < 2²⁴: exact
+    return mask.index_select(0, torch.nan_to_num_(u @ strides, nan=0.0).long())
 
 
 class DeformationField:
@@ -106,10 +159,12 @@ class DeformationField:
             ok = torch.linalg.det(edges) != 0
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
+            locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device)
             self._frames[frame] = _Frame(
-                TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device),
-                torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).to(self.dtype),
-                torch.where(ok[:, None, None], jacobian, eye).to(self.dtype),
+                locator,
+                torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).t().to(self.dtype).contiguous(),
+                torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
+                _near_grid((locator, self._rest())),
             )
         return self._frames[frame]
 
@@ -118,25 +173,36 @@ class DeformationField:
             self._rest_locator = TetLocator(self.rest_vertices, self.tets, dtype=self.dtype, device=self.device)
         return self._rest_locator
 
-    def to_canonical(self, x: torch.Tensor, frame: int = 0) -> CanonicalPoints:
-        """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space (see the module docstring)."""
+    def bend(self, x: torch.Tensor, frame: int = 0) -> BentPoints:
+        """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space; report each point's deformed tet
+        (see the module docstring). ``x`` is not modified."""
         mapping = self._frame(frame)
         x = torch.as_tensor(x).to(device=self.device, dtype=self.dtype).reshape(-1, 3)
-        tet, bary = mapping.locator.locate(x)
-        inside = tet >= 0
+        near = torch.nonzero(_near(mapping.near, x)).squeeze(1)
+        found, bary = mapping.locator.locate(x.index_select(0, near))
+        inside = found >= 0
         idx = torch.nonzero(inside).squeeze(1)
-        t, b = tet.index_select(0, idx), bary.index_select(0, idx)
-        r = mapping.rest_rows.index_select(0, t)
-        points = x.clone()
-        mapped = [r[:, i] + r[:, 3 + 3 * i] * b[:, 1] + r[:, 4 + 3 * i] * b[:, 2] + r[:, 5 + 3 * i] * b[:, 3]
+        r = mapping.rest_columns.index_select(1, found.index_select(0, idx))  # (12,P)
+        b = bary.t().index_select(1, idx)  # (4,P)
+        mapped = [r[i] + r[3 + 3 * i] * b[1] + r[4 + 3 * i] * b[2] + r[5 + 3 * i] * b[3]
                   for i in range(3)]  # r0 + R (b1, b2, b3) = Σ b_i r_i
-        points.index_copy_(0, idx, torch.stack(mapped, 1))
-        jacobian = torch.eye(3, dtype=self.dtype, device=self.device).repeat(len(x), 1, 1)
-        jacobian.index_copy_(0, idx, mapping.jacobian.index_select(0, t))
-        outside = torch.nonzero(~inside).squeeze(1)
-        in_rest = self._rest().locate(x.index_select(0, outside))[0] >= 0
-        empty = torch.zeros_like(inside).index_copy_(0, outside, in_rest)
-        return CanonicalPoints(points, inside, empty, jacobian)
+        points = x.index_copy(0, near.index_select(0, idx), torch.stack(mapped, 1))
+        outside = near.index_select(0, torch.nonzero(~inside).squeeze(1))
+        vacated = outside[self._rest().locate(x.index_select(0, outside))[0] >= 0]
+        empty = torch.zeros(len(x), dtype=torch.bool, device=self.device).index_fill_(0, vacated, True)
+        tet = torch.full((len(x),), -1, dtype=torch.int64, device=self.device).index_copy_(0, near, found)
+        return BentPoints(points, tet, empty)
+
+    def jacobian(self, tet: torch.Tensor, frame: int = 0) -> torch.Tensor:
+        """``(M,3,3)`` dx_c/dx of points in deformed tets ``tet (M,)`` of ``frame`` (identity where ``tet`` is -1)."""
+        table = self._frame(frame).jacobian
+        tet = torch.as_tensor(tet, device=self.device)
+        return table.index_select(0, torch.where(tet >= 0, tet, len(table) - 1))
+
+    def to_canonical(self, x: torch.Tensor, frame: int = 0) -> CanonicalPoints:
+        """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space (see the module docstring)."""
+        bent = self.bend(x, frame)
+        return CanonicalPoints(bent.points, bent.tet >= 0, bent.empty, self.jacobian(bent.tet, frame))
 
     def save(self, path: str | os.PathLike) -> None:
         """Write ``deformation.npz`` atomically."""

@@ -87,6 +87,7 @@ class _TetTable:
         self.usable = ok & torch.isfinite(kappa) & (self.error <= _MAX_BARY_ERROR)
         self.tolerance = torch.where(self.usable, self.eps + self.error, 0.0)  # accepted => exact b_i >= -tol
         self.rows = torch.cat([self.corners[:, 0], minv.reshape(-1, 9)], 1).to(dtype)  # (K,12)
+        self.columns = self.rows.t().contiguous()  # (12,K): gathers of it give contiguous coefficient rows
         margin = (4 * self.tolerance * extent)[:, None]
         self.box_lo = _round(lo - margin, dtype, -1)
         self.box_hi = _round(hi + margin, dtype, +1)
@@ -192,6 +193,7 @@ class TetLocator:
         cell, tet, depth, ijk = self._register(ids, shape, strides)
         n_cells = int(padded.prod())
         self._neighbours = _face_neighbours(table.tets, table.usable)
+        self._neighbours_t = self._neighbours.t().contiguous()  # (4,K)
         # Sub-cell masks matter only where the mesh ends: cells holding a tet with a boundary face; every other
         # cell keeps all 64 bits (always conservative).
         touched = torch.zeros(n_cells, dtype=torch.bool, device=self.device)
@@ -226,6 +228,11 @@ class TetLocator:
     @property
     def n_tets(self) -> int:
         return len(self._table)
+
+    def boxes(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(lo, hi)`` ``(U,3)`` in the working dtype, one per usable tet: outside its box a tet accepts no point."""
+        table = self._table
+        return table.box_lo[table.usable], table.box_hi[table.usable]
 
     @property
     def n_entries(self) -> int:
@@ -289,7 +296,7 @@ class TetLocator:
         lo = self._lo.to(torch.float64)
         cells, tets, depths, coords = [], [], [], []
         for a, b in _batches(counts):
-            owner, local = _expand(counts[a:b])
+            owner, local = expand_ranges(counts[a:b])
             owner += a
             sy, sz = span[owner, 1], span[owner, 2]
             ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
@@ -341,7 +348,7 @@ class TetLocator:
         per_entry = lengths[owner_of]  # each entry meets every entry of its list
         keys = []
         for a, b in _batches(per_entry):
-            entry, local = _expand(per_entry[a:b])
+            entry, local = expand_ranges(per_entry[a:b])
             entry += a
             other = starts[owner_of[entry]] + local
             mine, theirs = tet[entry], tet[other]
@@ -360,70 +367,75 @@ class TetLocator:
         points = _as_tensor(points, self.dtype, self.device).reshape(-1, 3)
         tet = torch.full((len(points),), -1, dtype=torch.int64, device=self.device)
         bary = torch.zeros((4, len(points)), dtype=self.dtype, device=self.device)
+        columns = torch.stack(points.unbind(1))  # (3, M): each coordinate contiguous, gathered by index_select(1, ·)
         for start in range(0, len(points), self.chunk):
             stop = min(start + self.chunk, len(points))
-            self._locate_chunk(points[start:stop], tet[start:stop], bary[:, start:stop])
+            self._locate_chunk(columns[:, start:stop], tet[start:stop], bary[:, start:stop])
         return tet, bary.t()
 
-    def _locate_chunk(self, points: torch.Tensor, tet: torch.Tensor, bary: torch.Tensor) -> None:
-        cell, sub = self._cell_ids(points)
+    def _bary(self, code: torch.Tensor, columns: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """:func:`barycentric` of points ``columns (3,P)`` in tets ``code (P,)``, on contiguous coefficient rows."""
+        return barycentric(self._table.columns.index_select(1, code).t(), columns.t())
+
+    def _locate_chunk(self, columns: torch.Tensor, tet: torch.Tensor, bary: torch.Tensor) -> None:
+        def write(where: torch.Tensor, found: torch.Tensor, b) -> None:
+            tet.scatter_(0, where, found.to(torch.int64))
+            for i in range(4):
+                bary[i].scatter_(0, where, b[i])
+
+        cell, sub = self._cell_ids(columns.t())
         # Cell and sub-cell occupancy: points that no tet can accept stop here.
         keep = self._cell_mask.index_select(0, cell).bitwise_right_shift_(sub).bitwise_and_(1)
         pos = torch.nonzero(keep).squeeze(1)
-        p, sub = points.index_select(0, pos), sub.index_select(0, pos)
+        p, sub = columns.index_select(1, pos), sub.index_select(0, pos)
         octant = (sub >> 3).bitwise_and_(4) | (sub >> 2).bitwise_and_(2) | (sub >> 1).bitwise_and_(1)
         code = self._octant_primary.index_select(0, cell.index_select(0, pos).mul_(8).add_(octant))
-        # Walk: a safe tet that accepts the point deeply is the answer; a tet that accepts it otherwise, or a
-        # walk that leaves the mesh, sends the point to the full scan of its cell list. Every round writes its
-        # answer for all its points; later rounds and the scan overwrite the ones that were not final.
+        # Walk: a safe tet that accepts the point deeply is the answer (written); a tet that accepts it otherwise,
+        # or a walk that leaves the mesh, sends the point to the full scan of its cell list.
         scan = []
         for step in range(self.rounds):
-            b = barycentric(self._table.rows.index_select(0, code), p)
-            tet.index_copy_(0, pos, code.to(torch.int64))
-            for i in range(4):
-                bary[i].index_copy_(0, pos, b[i])
+            b = self._bary(code, p)
             low = _min_bary(b)
             done = low >= self._deep.index_select(0, code)
-            rejected = low < -self.eps
+            final = torch.nonzero(done).squeeze(1)
+            write(pos.index_select(0, final), code.index_select(0, final), [x.index_select(0, final) for x in b])
             if step + 1 == self.rounds:
                 scan.append(pos.index_select(0, torch.nonzero(~done).squeeze(1)))
                 break
+            rejected = low < -self.eps
             scan.append(pos.index_select(0, torch.nonzero(~(done | rejected)).squeeze(1)))
             out = torch.nonzero(rejected).squeeze(1)  # walk across the face of the most negative b_i
             low, b = low.index_select(0, out), [x.index_select(0, out) for x in b]
-            nb = self._neighbours.index_select(0, code.index_select(0, out))  # (R,4): across the face opposite i
-            code = torch.where(b[0] == low, nb[:, 0], torch.where(b[1] == low, nb[:, 1],
-                                                                  torch.where(b[2] == low, nb[:, 2], nb[:, 3])))
+            nb = self._neighbours_t.index_select(1, code.index_select(0, out))  # (4,R): across the face opposite i
+            code = torch.where(b[0] == low, nb[0], torch.where(b[1] == low, nb[1], torch.where(b[2] == low, nb[2], nb[3])))
             inner = code >= 0
             scan.append(pos.index_select(0, out.index_select(0, torch.nonzero(~inner).squeeze(1))))
             go = torch.nonzero(inner).squeeze(1)
-            pos, code, p = pos.index_select(0, out).index_select(0, go), code.index_select(0, go), \
-                p.index_select(0, out.index_select(0, go))
+            walk = out.index_select(0, go)
+            pos, code, p = pos.index_select(0, walk), code.index_select(0, go), p.index_select(1, walk)
             if len(pos) == 0:
                 break
         rest = torch.cat(scan)
         if len(rest):
-            found, b = self._scan(cell.index_select(0, rest), points.index_select(0, rest))
-            tet.index_copy_(0, rest, found)
-            for i in range(4):
-                bary[i].index_copy_(0, rest, b[i])
+            write(rest, *self._scan(cell.index_select(0, rest), columns.index_select(1, rest)))
 
-    def _scan(self, cell: torch.Tensor, points: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
-        """Brute force over each point's cell list: the smallest accepting tet index (-1 if none) and its b (0)."""
+    def _scan(self, cell: torch.Tensor, columns: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """Brute force over each point's cell list (points ``columns (3,P)``): the smallest accepting tet index (-1
+        if none) and its b (0)."""
         k = len(self._table)
-        owner, local = _expand(self._cell_count.index_select(0, cell))
+        owner, local = expand_ranges(self._cell_count.index_select(0, cell))
         entry = self._cell_start.index_select(0, cell).index_select(0, owner) + local
         cand = self._entry_tet.index_select(0, entry)
-        b = barycentric(self._table.rows.index_select(0, cand), points.index_select(0, owner))
+        b = self._bary(cand, columns.index_select(1, owner))
         key = torch.where(_min_bary(b) >= -self.eps, cand, k)
         found = torch.full((len(cell),), k, dtype=torch.int64, device=self.device)
         found.scatter_reduce_(0, owner, key, "amin")
         inside = found < k
-        b = barycentric(self._table.rows.index_select(0, torch.where(inside, found, 0)), points)
+        b = self._bary(torch.where(inside, found, 0), columns)
         return torch.where(inside, found, -1), [torch.where(inside, x, 0.0) for x in b]
 
 
-def _expand(counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def expand_ranges(counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(owner, local)`` enumerating ``range(counts[i])`` for every ``i``, concatenated."""
     owner = torch.repeat_interleave(torch.arange(len(counts), device=counts.device), counts)
     local = torch.arange(len(owner), device=counts.device) - (torch.cumsum(counts, 0) - counts).index_select(0, owner)

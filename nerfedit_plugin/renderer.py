@@ -9,8 +9,9 @@ Bending (DESIGN.md §3). With a DeformationField, a sample ``x`` (deformed space
 inside the deformed proxy T' it is mapped, in the space the object left (inside T, outside T') it is *empty* (zero
 opacity, never queried), elsewhere it is unchanged (background and other objects untouched). The view direction
 follows the bent ray: ``d_c = normalize(J d)``. The field's :meth:`~nerfedit_plugin.field.Field.occupied` grid then
-drops samples at their canonical position; only the kept samples are queried, in one packed batch. Only samples
-near the proxies (:func:`proxy_cells`) go through the point locator: the others lie outside T and T' (identity).
+drops samples at their canonical position; only the kept samples are queried, in one packed batch. Bending costs
+one :meth:`~nerfedit_plugin.deformation_field.DeformationField.bend` per batch (only samples near the proxies are
+located) and the per-tet Jacobians of the kept samples only.
 
 Opacity of a sample:
 
@@ -35,7 +36,6 @@ inside point: ``rgb = c(t*)``, ``opacity = 1``, ``depth = t*``. This makes the m
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -110,78 +110,26 @@ def ray_box(origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor) 
     return near, far
 
 
-PROXY_CELLS = 64
-"""Cells per axis of the per-frame grid over the proxies' bounding box that tells which samples need bending."""
-_proxy_cells_cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-def proxy_cells(deformation, frame: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(lo (3,), scale (3,), mask ((C+2)³,) bool)``: a ``C = PROXY_CELLS`` grid (plus a border layer of unmarked
-    cells that takes every point outside it) over the box of the rest proxy T and the deformed proxy T' of
-    ``frame``; a cell is marked when the bounding box of some tet of T or T' (grown by 10⁻³ of its size, beyond the
-    point locator's tolerance) touches it. A sample in an unmarked cell lies outside both proxies, so bending maps
-    it to itself (J = I) and the point locator is not asked. Cached per deformation and frame."""
-    cache = _proxy_cells_cache.setdefault(deformation, {})
-    key = (int(frame), str(device))
-    if key not in cache:
-        tets = torch.as_tensor(deformation.tets, device=device)
-        corners = torch.cat([
-            torch.as_tensor(deformation.rest_vertices, device=device)[tets],
-            torch.as_tensor(deformation.deformed_vertices[frame], device=device)[tets],
-        ])
-        box_lo, box_hi = corners.amin(1), corners.amax(1)
-        pad = 1e-3 * (box_hi - box_lo).amax(1, keepdim=True) + 1e-6
-        box_lo, box_hi = box_lo - pad, box_hi + pad
-        lo = box_lo.amin(0)
-        scale = PROXY_CELLS / (box_hi.amax(0) - lo)
-        first = ((box_lo - lo) * scale).floor().long().clamp(0, PROXY_CELLS - 1)
-        span = ((box_hi - lo) * scale).floor().long().clamp(0, PROXY_CELLS - 1) - first + 1
-        count = span.prod(1)
-        owner = torch.repeat_interleave(torch.arange(len(span), device=device), count)
-        offsets = torch.repeat_interleave(torch.cumsum(count, 0) - count, count)
-        local = torch.arange(int(count.sum()), device=device) - offsets
-        sy, sz = span[owner, 1], span[owner, 2]
-        ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1) + 1
-        side = PROXY_CELLS + 2
-        mask = torch.zeros(side**3, dtype=torch.bool, device=device)
-        mask[(ijk * torch.tensor([side * side, side, 1], device=device)).sum(1)] = True
-        cache[key] = (lo.float(), scale.float(), mask)
-    return cache[key]
-
-
-def _near_proxy(points: torch.Tensor, cells: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> torch.Tensor:
-    """``(M,)`` bool: the points lie in a marked cell of :func:`proxy_cells`."""
-    lo, scale, mask = cells
-    side = PROXY_CELLS + 2
-    u = ((points - lo) * scale).clamp_(-1.0, float(PROXY_CELLS)).floor_().add_(1.0)  # border cells: 0 and C + 1
-    strides = torch.tensor([side * side, side, 1.0], dtype=u.dtype, device=u.device)  # exact in float32 (< 2²⁴)
-    return mask[(u @ strides).long()]
-
-
-def _keep(field: Field, points: torch.Tensor, deformation, frame: int) -> _Kept:
-    """Bend flat samples to canonical space, drop empty (vacated) ones, then those the occupancy grid rejects.
-    Only samples near the proxies go through the point locator; the others keep their position (J = I)."""
-    index, jacobian = None, None
+def _keep(field: Field, points: torch.Tensor, deformation, frame: int, jacobian: bool = True) -> _Kept:
+    """Bend flat samples to canonical space, drop empty (vacated) ones, then those the occupancy grid rejects; the
+    Jacobians are gathered for the kept samples only (not at all without ``jacobian``)."""
+    index, tet = None, None
     if deformation is not None:
-        near = _near_proxy(points, proxy_cells(deformation, frame, points.device))
-        far, near = torch.nonzero(~near).squeeze(1), torch.nonzero(near).squeeze(1)
-        bent = deformation.to_canonical(points.index_select(0, near), frame)
-        mapped = torch.nonzero(~bent.empty.to(points.device)).squeeze(1)
-        index = torch.cat([far, near.index_select(0, mapped)])
-        points = torch.cat([points.index_select(0, far), bent.points.to(points).index_select(0, mapped)])
-        jacobian = torch.cat([
-            torch.eye(3, dtype=points.dtype, device=points.device).expand(len(far), 3, 3),
-            bent.jacobian.to(points).index_select(0, mapped),
-        ])
+        bent = deformation.bend(points, frame)
+        index = torch.nonzero(~bent.empty.to(points.device)).squeeze(1)
+        points = bent.points.to(points).index_select(0, index)
+        tet = bent.tet.to(points.device).index_select(0, index)
     occupied = field.occupied(points)
     if occupied is not None:
         chosen = torch.nonzero(occupied).squeeze(1)
         index = chosen if index is None else index.index_select(0, chosen)
         points = points.index_select(0, chosen)
-        jacobian = None if jacobian is None else jacobian.index_select(0, chosen)
+        tet = None if tet is None else tet.index_select(0, chosen)
     if index is None:
         index = torch.arange(len(points), device=points.device)
-    return _Kept(index, points, jacobian)
+    if deformation is None or not jacobian:
+        return _Kept(index, points, None)
+    return _Kept(index, points, deformation.jacobian(tet, frame).to(points))
 
 
 def _canonical_directions(directions: torch.Tensor, jacobian: torch.Tensor | None) -> torch.Tensor:
@@ -285,7 +233,7 @@ def _sdf_alpha(
 def _inside(field: Field, points: torch.Tensor, deformation, frame: int) -> torch.Tensor:
     """Bent exact inside test of an opaque field at points ``(M,3)`` in deformed space."""
     inside = torch.zeros(len(points), dtype=torch.bool, device=points.device)
-    return inside.index_fill_(0, _keep(field, points, deformation, frame).index, True)
+    return inside.index_fill_(0, _keep(field, points, deformation, frame, jacobian=False).index, True)
 
 
 def _first_inside(field: Field, origins, directions, t, deformation, frame) -> torch.Tensor:

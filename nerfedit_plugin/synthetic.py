@@ -63,6 +63,15 @@ def colorize(mesh: SurfaceMesh, seed: int = 0) -> SurfaceMesh:
     return SurfaceMesh(mesh.vertices, mesh.faces, np.round(colors * 255.0) / 255.0)
 
 
+def bend(vertices: np.ndarray, radius: float) -> np.ndarray:
+    """A smooth, isometric reference edit (tests and benchmarks of ray bending): bend the z axis, from z = −1 up,
+    into a circular arc of ``radius`` in the xz plane, ``(x, y, z) ↦ (ρ − (ρ − x) cos θ, y, −1 + (ρ − x) sin θ)``
+    with ``θ = (z + 1)/ρ``."""
+    x, y, z = np.asarray(vertices, dtype=np.float64).T
+    angle = (z + 1.0) / radius
+    return np.stack([radius - (radius - x) * np.cos(angle), y, -1.0 + (radius - x) * np.sin(angle)], axis=1)
+
+
 def render_mesh(
     mesh: SurfaceMesh, cameras: Cameras, background=(1.0, 1.0, 1.0), supersample: int = 1
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.deformation_field import DeformationField
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.locate import TetLocator
 
 
 @pytest.fixture(scope="module")
@@ -119,6 +120,32 @@ def test_degenerate_and_inverted_deformed_tets_do_not_crash(proxy):
     good = mapped & (np.abs(out.points.double().numpy() - mirrored).max(1) < 1e-5)
     assert good.sum() > 0.95 * mapped.sum()  # only points in tets touching the collapsed edge differ
     assert (torch.linalg.det(out.jacobian[out.inside].double()) < 0).double().mean() > 0.95
+
+
+def test_bend_agrees_with_point_location_in_both_proxies(proxy):
+    """``bend`` locates only points near the proxies (a coarse grid): its regions, tets and points must equal plain
+    point location in T' and T for points on and just around both boundaries and far away."""
+    v, tets = proxy.vertices, proxy.tets
+    deformed = v + np.array([0.0, 0.0, 0.35 * np.ptp(v[:, 2])])  # T' overlaps T and leaves vacated space
+    field = DeformationField(v, tets, deformed[None])
+    rng = np.random.default_rng(6)
+    boundary = np.concatenate([v, deformed])
+    points = np.concatenate([boundary] + [boundary + rng.normal(0, s, boundary.shape) for s in (1e-6, 1e-4, 1e-2)]
+                            + [sample(np.concatenate([v, deformed]), 20000, seed=7, grow=1.5).numpy()])
+    x = torch.as_tensor(points, dtype=torch.float32)
+    bent = field.bend(x)
+    tet_deformed, bary = TetLocator(deformed, tets).locate(x)
+    in_rest = TetLocator(v, tets).locate(x)[0] >= 0
+    assert torch.equal(bent.tet, tet_deformed)
+    assert torch.equal(bent.empty, (tet_deformed < 0) & in_rest)
+    inside = tet_deformed >= 0
+    assert 0.2 < inside.double().mean() < 0.8 and 0.05 < bent.empty.double().mean()
+    assert torch.equal(bent.points[~inside], x[~inside])
+    expected = (bary[inside, :, None] * torch.as_tensor(v, dtype=torch.float32)[torch.as_tensor(tets)[tet_deformed[inside]]]).sum(1)
+    assert torch.allclose(bent.points[inside], expected, atol=1e-5)
+    out = field.to_canonical(x)
+    assert torch.equal(out.points, bent.points) and torch.equal(out.inside, inside)
+    assert torch.equal(out.jacobian, field.jacobian(bent.tet))
 
 
 def test_save_load_round_trip(tmp_path, proxy):

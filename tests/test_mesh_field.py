@@ -17,7 +17,7 @@ from nerfedit_plugin.lift import Lift
 from nerfedit_plugin.mesh import SurfaceMesh
 from nerfedit_plugin.proxy import TetProxy, embed_points
 from nerfedit_plugin.renderer import RenderConfig, render_image
-from nerfedit_plugin.synthetic import GenerateConfig, colorize, generate_dataset, render_mesh
+from nerfedit_plugin.synthetic import GenerateConfig, bend, colorize, generate_dataset, render_mesh
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -81,13 +81,6 @@ def test_renders_what_the_generator_renders(tmp_path):
         error = np.abs(image - truth).max(-1)
         assert psnr(image, truth) > 40.0
         assert np.mean(error < 2.5 / 255) > 0.99  # 8-bit quantisation, except a few grazing silhouette rays
-
-
-def bend(vertices: np.ndarray, radius: float) -> np.ndarray:
-    """Bend the z axis (from z = −1 up) into a circular arc of ``radius`` in the xz plane: an isometric, smooth map."""
-    x, y, z = vertices.T
-    angle = (z + 1.0) / radius
-    return np.stack([radius - (radius - x) * np.cos(angle), y, -1.0 + (radius - x) * np.sin(angle)], axis=1)
 
 
 def test_ray_bending_reproduces_the_deformed_mesh(capsule, capsule_proxy):
