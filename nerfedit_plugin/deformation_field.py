@@ -116,12 +116,15 @@ def _near_grid(locators: tuple[TetLocator, ...]) -> tuple[torch.Tensor, torch.Te
 
 
 def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
-    """``(M,)`` bool: the points lie in a marked cell of :func:`_near_grid` (NaN points: no)."""
+    """``(M,)`` bool: the points lie in a marked cell of :func:`_near_grid` (NaN points: no). One coordinate
+    column at a time: ``floor(clamp(x scale + offset, 0, C+1))`` times the cell stride, summed (ids < 2²⁴: exact)."""
     scale, offset, mask = grid
     side = NEAR_CELLS + 2
-    u = torch.addcmul(offset, x, scale).clamp_(0.0, side - 1.0).floor_()
-    strides = torch.tensor([side * side, side, 1.0], dtype=u.dtype, device=u.device)  # ids < 2²⁴: exact
-    return mask.index_select(0, torch.nan_to_num_(u @ strides, nan=0.0).long())
+    cell = None
+    for i, stride in enumerate((side * side, side, 1)):
+        u = torch.addcmul(offset[i], x[:, i], scale[i]).clamp_(0.0, side - 1.0).floor_()
+        cell = u.mul_(stride) if cell is None else cell.add_(u, alpha=stride)
+    return mask.index_select(0, torch.nan_to_num_(cell, nan=0.0).to(torch.int64))
 
 
 class DeformationField:

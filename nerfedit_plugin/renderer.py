@@ -111,22 +111,22 @@ def ray_box(origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor) 
 
 
 def _keep(field: Field, points: torch.Tensor, deformation, frame: int, jacobian: bool = True) -> _Kept:
-    """Bend flat samples to canonical space, drop empty (vacated) ones, then those the occupancy grid rejects; the
-    Jacobians are gathered for the kept samples only (not at all without ``jacobian``)."""
-    index, tet = None, None
+    """Bend flat samples to canonical space and keep those neither empty (vacated) nor rejected by the occupancy
+    grid (one mask, one ``nonzero``); the Jacobians are gathered for the kept samples only (not at all without
+    ``jacobian``)."""
+    tet, empty = None, None
     if deformation is not None:
         bent = deformation.bend(points, frame)
-        index = torch.nonzero(~bent.empty.to(points.device)).squeeze(1)
-        points = bent.points.to(points).index_select(0, index)
-        tet = bent.tet.to(points.device).index_select(0, index)
-    occupied = field.occupied(points)
-    if occupied is not None:
-        chosen = torch.nonzero(occupied).squeeze(1)
-        index = chosen if index is None else index.index_select(0, chosen)
-        points = points.index_select(0, chosen)
-        tet = None if tet is None else tet.index_select(0, chosen)
-    if index is None:
+        points, tet, empty = bent.points.to(points), bent.tet.to(points.device), bent.empty.to(points.device)
+    keep = field.occupied(points)
+    if empty is not None:
+        keep = ~empty if keep is None else keep & ~empty
+    if keep is None:
         index = torch.arange(len(points), device=points.device)
+    else:
+        index = torch.nonzero(keep).squeeze(1)
+        points = points.index_select(0, index)
+        tet = None if tet is None else tet.index_select(0, index)
     if deformation is None or not jacobian:
         return _Kept(index, points, None)
     return _Kept(index, points, deformation.jacobian(tet, frame).to(points))

@@ -16,6 +16,14 @@ def proxy(capsule_proxy):
     return capsule_proxy
 
 
+@pytest.fixture(scope="module")
+def lifted(proxy) -> tuple[np.ndarray, DeformationField]:
+    """``(T', field)``: the proxy translated up along z by 0.35 of its height (T' overlaps T and leaves vacated
+    space); shared by the tests of the three regions so its point locators are built once."""
+    deformed = proxy.vertices + np.array([0.0, 0.0, 0.35 * np.ptp(proxy.vertices[:, 2])])
+    return deformed, DeformationField(proxy.vertices, proxy.tets, deformed[None])
+
+
 def sample(vertices: np.ndarray, n: int, seed: int = 0, grow: float = 1.2) -> torch.Tensor:
     lo, hi = vertices.min(0), vertices.max(0)
     centre, half = (lo + hi) / 2, (hi - lo) / 2 * grow
@@ -87,11 +95,11 @@ def test_round_trip_of_embedded_surface_under_non_rigid_lift(proxy):
     assert (error < 1e-6 * scale).double().mean() > 0.9  # the rest crossed into a neighbouring tet
 
 
-def test_regions_mapped_vacated_and_far(proxy):
+def test_regions_mapped_vacated_and_far(proxy, lifted):
     v = proxy.vertices
     size = np.ptp(v, axis=0)
-    shift = np.array([0.0, 0.0, 0.6 * size[2]])
-    field = DeformationField(v, proxy.tets, (v + shift)[None])
+    deformed, field = lifted
+    shift = deformed[0] - v[0]
     centre = (v.min(0) + v.max(0)) / 2
     points = torch.as_tensor(np.array([
         centre + [0, 0, 0.5 * size[2]],  # inside T' (and T): mapped back by -shift
@@ -122,12 +130,11 @@ def test_degenerate_and_inverted_deformed_tets_do_not_crash(proxy):
     assert (torch.linalg.det(out.jacobian[out.inside].double()) < 0).double().mean() > 0.95
 
 
-def test_bend_agrees_with_point_location_in_both_proxies(proxy):
+def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted):
     """``bend`` locates only points near the proxies (a coarse grid): its regions, tets and points must equal plain
     point location in T' and T for points on and just around both boundaries and far away."""
     v, tets = proxy.vertices, proxy.tets
-    deformed = v + np.array([0.0, 0.0, 0.35 * np.ptp(v[:, 2])])  # T' overlaps T and leaves vacated space
-    field = DeformationField(v, tets, deformed[None])
+    deformed, field = lifted  # T' overlaps T and leaves vacated space
     rng = np.random.default_rng(6)
     boundary = np.concatenate([v, deformed])
     points = np.concatenate([boundary] + [boundary + rng.normal(0, s, boundary.shape) for s in (1e-6, 1e-4, 1e-2)]

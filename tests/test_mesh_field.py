@@ -94,7 +94,7 @@ def test_ray_bending_reproduces_the_deformed_mesh(capsule, capsule_proxy):
     assert (embed_tets >= 0).all()  # subdivision points lie on the coarse surface, inside the same proxy
     proxy = TetProxy(capsule_proxy.vertices, capsule_proxy.tets, capsule_proxy.cage, embed_tets, embed_bary)
     bent = bend(mesh.vertices, radius=1.0)
-    cams = Cameras.from_fov(look_at(torch.tensor([[0.0, -3.5, 0.3]]), torch.tensor([[0.3, 0.0, 0.0]])), 100, 100, 0.75)
+    cams = Cameras.from_fov(look_at(torch.tensor([[0.0, -3.5, 0.3]]), torch.tensor([[0.3, 0.0, 0.0]])), 64, 64, 0.75)
     truth = render_mesh(mesh.with_vertices(bent), cams)[0][0]
     field, config = MeshField.from_mesh(mesh), RenderConfig(n_samples=96)
     methods = ("tet-arap", "closest-point", "knn3")
