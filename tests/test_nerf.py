@@ -138,5 +138,18 @@ def test_extract_mesh_of_a_ball():
     assert (np.einsum("ij,ij->i", normals, v.mean(1)) > 0).mean() > 0.99  # faces wind outward
     assert mesh.vertex_colors.shape == (len(mesh.vertices), 3)
     assert ((mesh.vertex_colors >= 0) & (mesh.vertex_colors <= 1)).all()
-    with pytest.raises(ValueError, match="outside the density range"):
+    with pytest.raises(ValueError, match="outside the range"):
         field.extract_mesh(resolution=16, level=1e9)
+
+
+def test_occupancy_lookup_matches_the_cell_of_each_point():
+    from nerfedit_plugin.fields.occupancy import OccupancyGrid
+
+    grid = OccupancyGrid(BOX, 5)
+    grid.mask.copy_(torch.rand(5, 5, 5, generator=torch.Generator().manual_seed(5)) > 0.5)
+    points = torch.cat([random_points(3000, BOX * 1.2, seed=6), BOX, BOX.mean(0, keepdim=True)])  # + the corners
+    u = (points - BOX[0]) / (BOX[1] - BOX[0]) * 5
+    inside = ((u >= 0) & (u <= 5)).all(1)
+    cell = u.floor().clamp(0, 4).long()
+    expected = torch.tensor([bool(grid.mask[tuple(c)]) for c in cell.tolist()]) & inside
+    assert torch.equal(grid.occupied(points), expected) and inside.any() and (~inside).any()

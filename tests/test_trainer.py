@@ -68,3 +68,17 @@ def test_ray_pool_keeps_covered_pixels_and_drops_far_background():
     assert set(pool.tolist()) == expected
     assert len(_ray_pool(flat_dataset(alpha=alpha), margin=-1)) == 128
     assert len(_ray_pool(flat_dataset(), margin=3)) == 128  # no alpha: every pixel
+
+
+def test_cpu_clock_counts_the_training_thread_and_bad_clocks_are_rejected():
+    import time
+
+    data = flat_dataset()
+    field = ConstantField(FieldConfig(), data.scene_bbox)
+    config = TrainerConfig(max_steps=20, batch_rays=64, n_samples=8, eval_every_seconds=0, progress=False,
+                           clock="cpu")
+    start = time.perf_counter()
+    log = train(field, data, config)
+    assert log["steps"] == 20 and 0.0 < log["train_seconds"] <= time.perf_counter() - start  # CPU time ≤ wall time
+    with pytest.raises(ValueError, match="clock"):
+        train(field, data, TrainerConfig(max_steps=1, progress=False, clock="sundial"))

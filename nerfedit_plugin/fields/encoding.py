@@ -35,8 +35,8 @@ class DenseGrid(torch.nn.Module):
             raise ValueError(f"DenseGrid: init must have shape {(n**3, channels)}, got {tuple(table.shape)}")
         self.table = torch.nn.Parameter(table.clone())
 
-    def corners(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Table rows ``(M,8)`` of each point's cell corners and their trilinear weights ``(M,8)`` (sum 1)."""
+    def _cell(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Table rows ``(M,8)`` of each point's cell corners and the point's fractional position ``(M,3)`` in it."""
         lo, hi = self.bbox
         n = self.resolution
         u = ((points - lo) / (hi - lo) * n).clamp(0.0, float(n))
@@ -45,14 +45,33 @@ class DenseGrid(torch.nn.Module):
         cell = cell.long()
         stride = torch.tensor([(n + 1) ** 2, n + 1, 1], device=points.device)
         rows = (cell * stride).sum(-1, keepdim=True) + (_CORNERS.to(points.device) * stride).sum(-1)
-        pair = torch.stack([1.0 - frac, frac], dim=1)  # (M, 2, 3): weight of corner 0 / 1 along each axis
-        weights = pair[:, :, None, None, 0] * pair[:, None, :, None, 1] * pair[:, None, None, :, 2]
-        return rows, weights.reshape(-1, 8)
+        return rows, frac
+
+    def corners(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Table rows ``(M,8)`` of each point's cell corners and their trilinear weights ``(M,8)`` (sum 1)."""
+        rows, frac = self._cell(points)
+        return rows, _blend(torch.stack([1.0 - frac, frac], dim=1))
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         """Trilinear values ``(M, channels)`` at ``points (M,3)``."""
         rows, weights = self.corners(points)
         return torch.bmm(weights[:, None, :], F.embedding(rows, self.table))[:, 0]
+
+    def value_and_gradient(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Trilinear values ``(M, channels)`` at ``points (M,3)`` and their exact spatial gradients
+        ``(M, 3, channels)`` (of the interpolant of each point's cell; points outside the box are clamped onto it),
+        from one gather. Differentiable with respect to the table, not the points: ``∂w_c/∂x_a`` replaces the
+        factor of axis ``a`` in each corner weight by ``±N_a / (hi_a − lo_a)``."""
+        lo, hi = self.bbox
+        rows, frac = self._cell(points.detach())
+        pair = torch.stack([1.0 - frac, frac], dim=1)  # (M, 2, 3)
+        slope = torch.tensor([-1.0, 1.0], device=points.device)[:, None] * (self.resolution / (hi - lo))  # (2, 3)
+        weights = [_blend(pair)] + [
+            _blend(torch.cat([pair[..., :a], slope[:, a].expand(len(pair), 2)[..., None], pair[..., a + 1:]], -1))
+            for a in range(3)
+        ]
+        out = torch.bmm(torch.stack(weights, dim=1), F.embedding(rows, self.table))  # (M, 4, channels)
+        return out[:, 0], out[:, 1:]
 
     @torch.no_grad()
     def upsample(self) -> None:
@@ -84,6 +103,12 @@ class DenseGrid(torch.nn.Module):
         steps = torch.linspace(0.0, 1.0, self.resolution + 1, device=lo.device)
         axes = [steps * (hi[d] - lo[d]) + lo[d] for d in range(3)]
         return torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1)
+
+
+def _blend(pair: torch.Tensor) -> torch.Tensor:
+    """Corner weights ``(M,8)`` (order of ``_CORNERS``) as products of per-axis factors ``pair (M,2,3)``:
+    ``pair[:, b, a]`` is the factor of the corners on side ``b`` of axis ``a``."""
+    return (pair[:, :, None, None, 0] * pair[:, None, :, None, 1] * pair[:, None, None, :, 2]).reshape(-1, 8)
 
 
 def spherical_harmonics(directions: torch.Tensor, degree: int) -> torch.Tensor:

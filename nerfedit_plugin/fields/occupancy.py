@@ -15,12 +15,13 @@ import torch.nn.functional as F
 
 
 class OccupancyGrid(torch.nn.Module):
-    """``R³`` equal cells over ``bbox (2,3)``; starts all occupied. Points outside the box are unoccupied."""
+    """``R³`` equal cells (``R`` ≤ 256) over ``bbox (2,3)``; starts all occupied. Points outside the box are
+    unoccupied."""
 
     def __init__(self, bbox: torch.Tensor, resolution: int) -> None:
         super().__init__()
-        if resolution < 1:
-            raise ValueError(f"OccupancyGrid: resolution must be positive, got {resolution}")
+        if not 1 <= resolution <= 256:
+            raise ValueError(f"OccupancyGrid: resolution must be in [1, 256], got {resolution}")
         self.resolution = int(resolution)
         self.register_buffer("bbox", torch.as_tensor(bbox, dtype=torch.float32).reshape(2, 3).clone())
         self.register_buffer("mask", torch.ones((resolution,) * 3, dtype=torch.bool))
@@ -29,10 +30,12 @@ class OccupancyGrid(torch.nn.Module):
     def occupied(self, points: torch.Tensor) -> torch.Tensor:
         """``(M,)`` bool: the point lies in the box and in an occupied cell (cells are closed on the low side)."""
         lo, hi = self.bbox
-        u = (points - lo) / (hi - lo) * self.resolution
-        inside = ((u >= 0) & (u <= self.resolution)).all(-1)
-        cell = u.floor().clamp(0, self.resolution - 1).long()
-        return self.mask[cell[:, 0], cell[:, 1], cell[:, 2]] & inside
+        r = self.resolution
+        u = (points - lo) * (r / (hi - lo))
+        inside = (u.amin(-1) >= 0) & (u.amax(-1) <= r)
+        strides = torch.tensor([r * r, r, 1.0], dtype=u.dtype, device=u.device)  # exact in float32 (r³ < 2²⁴)
+        flat = (u.floor_().clamp_(0, r - 1) @ strides).long()
+        return self.mask.view(-1).index_select(0, flat) & inside
 
     @torch.no_grad()
     def update(self, cell_bound: torch.Tensor, threshold: float, dilation: int = 0, shell: int = 0) -> None:
@@ -54,11 +57,12 @@ class OccupancyGrid(torch.nn.Module):
         self.mask.copy_(mask[0, 0] & self.hull)
 
     @torch.no_grad()
-    def carve(self, cameras: Any, coverage: torch.Tensor, margin: int = 2) -> None:
+    def carve(self, cameras: Any, coverage: torch.Tensor, margin: int = 2, keep_unseen: bool = True) -> None:
         """Space carving (visual hull): mark empty every cell whose centre projects, in some camera, onto a pixel
         farther than ``margin`` pixels from any covered pixel (``coverage (C,H,W)`` bool, e.g. alpha > 0).
         Points inside an object project onto covered pixels in every view, so with ``margin`` ≥ the projected
-        half-diagonal of a cell no cell containing the object is carved. Cells outside a camera's image are kept.
+        half-diagonal of a cell no cell containing the object is carved. Cells outside a camera's image are kept
+        (``keep_unseen=False``: carved — what remains is seen by every camera).
         """
         lo, hi = self.bbox
         r = self.resolution
@@ -75,7 +79,7 @@ class OccupancyGrid(torch.nn.Module):
             seen = (depth > 0) & (x >= 0) & (x < cameras.width) & (y >= 0) & (y < cameras.height)
             col = x.clamp(0, cameras.width - 1).long()
             row = y.clamp(0, cameras.height - 1).long()
-            keep &= ~seen | grown[i, row, col]
+            keep &= (~seen & keep_unseen) | (seen & grown[i, row, col])
         self.hull &= keep.reshape(r, r, r)
         self.mask &= self.hull
 

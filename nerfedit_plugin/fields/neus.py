@@ -1,0 +1,253 @@
+"""The ``neus`` field backend: a signed distance field and appearance on a dense voxel grid, rendered with NeuS's
+unbiased opacity (in the shared renderer), a learned sharpness, an eikonal loss and an occupancy band around the
+surface — built to train in minutes on a CPU.
+
+Model: one channels-last :class:`~nerfedit_plugin.fields.encoding.DenseGrid` with ``1 + features`` channels over
+``scene_bbox``, refined coarse to fine. At a point ``x`` with view direction ``d``: ``f(x) = h · g₀(x)`` (``h`` =
+mean cell size of the final grid, so ``g₀`` is a distance in cells and Adam steps of a fixed size move the surface
+by a fixed fraction of a cell at any scene scale), initialised to the sphere ``f(x) = |x − c| − r`` (``c`` the box
+centre) and, when training on images with alpha, to the signed distance of their visual hull (``init_hull``); the
+colour is :class:`~nerfedit_plugin.fields.grid_field.ColorDecoder` of ``g₁..(x)`` and ``d``. The NeuS sharpness is
+``s = exp(log_s) / h`` (``log_s`` learnt).
+
+Eikonal loss: ``mean (|∇f| − 1)²`` at random points (half uniform in the box, half in occupied cells), with the
+grid's analytic gradient (:meth:`DenseGrid.value_and_gradient`), which :meth:`NeusField.query` also hands to the
+renderer's NeuS cosine through a first-order term, so that no double backward through the grid lookup is needed.
+
+Occupancy: NeuS opacity is negligible where ``|f| ≫ 1/s`` (outside: both section CDFs ≈ 1; inside: rays arrive
+with no transmittance left), so only cells that hold a point with ``|f| ≤ occupancy_band / s`` are sampled. Over a
+box of grid cells, ``f`` ranges exactly over ``[min, max]`` of its vertex values (trilinear interpolation is a convex
+combination of them and the box is connected), so ``min |f| = dist(0, [min, max])`` per cell is exact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Literal
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..field import Field, FieldConfig
+from ..mesh import SurfaceMesh
+from ..trainer import TrainerConfig, train
+from .encoding import DenseGrid
+from .grid_field import ColorDecoder, start_resolution
+from .level_set import extract_level_set
+from .occupancy import OccupancyGrid
+
+
+@dataclasses.dataclass
+class NeusConfig(FieldConfig):
+    """Dense-grid NeuS. The defaults are the CPU preset for the 100×100 built-in scene (bench/bench_train.py
+    --field neus); :meth:`tiny` is a seconds-scale preset for tests."""
+
+    _target: type = dataclasses.field(default_factory=lambda: NeusField)
+    resolution: int = 128
+    """Final grid cells per axis over the scene box (the grid has ``resolution + 1`` vertices per axis)."""
+    upsample_steps: tuple[int, ...] = (300,)
+    """Coarse to fine: the grid starts at ``resolution / 2^len(upsample_steps)`` cells per axis and doubles (exactly)
+    after each of these steps."""
+    features: int = 3
+    """Appearance feature channels per grid vertex, ≥ 3 (the first three are the direct colour logits; exactly 3
+    with ``decoder="rgb"``)."""
+    decoder: Literal["mlp", "rgb"] = "rgb"
+    """Colour decoder: direct colour plus a tiny MLP residual on features and view direction ("mlp"), or the direct
+    colour alone (no view dependence)."""
+    hidden: int = 32
+    """Hidden width of the colour MLP (one hidden layer)."""
+    sh_degree: int = 1
+    """Spherical-harmonics degree of the view-direction encoding fed to the MLP (0: view-independent)."""
+    init_radius: float = 0.5
+    """Radius of the initial sphere, as a fraction of the smallest half side of the scene box."""
+    init_hull: bool = True
+    """When the training images have alpha, :meth:`NeusField.fit` first replaces the sphere by the signed distance
+    to the visual hull of the covered pixels (at the starting grid resolution), so training starts near the surface."""
+    sharpness_init: float = 0.5
+    """Initial NeuS sharpness times the final cell size, ``s · h`` (0.5: the logistic density spans ~2 cells)."""
+    eikonal_weight: float = 1e-3
+    """Weight of the eikonal loss."""
+    eikonal_points: int = 4096
+    """Random points per step at which the eikonal loss is evaluated."""
+    anneal_steps: int = 300
+    """The renderer's cosine annealing ratio ramps linearly from 0 to 1 (unbiased) over these first steps."""
+    occupancy_resolution: int = 64
+    """Occupancy cells per axis; must divide the starting grid resolution. 0 disables the occupancy grid."""
+    occupancy_band: float = 8.0
+    """Cells are sampled when they hold a point with ``|f| ≤ occupancy_band / s`` (opacity changes by at most
+    ~``exp(−occupancy_band)`` elsewhere)."""
+    occupancy_dilation: int = 1
+    """Occupied cells are grown by this many cells (the band can move while training)."""
+    carve: bool = True
+    """Before training, carve the occupancy grid to the visual hull of the training images' alpha (when present)."""
+    occupancy_warmup: int = 64
+    """Steps before the first occupancy update."""
+    occupancy_every: int = 32
+    """Steps between occupancy updates."""
+    lr_grid: float = 0.2
+    """Adam learning rate of the grid (SDF in cells, colour logits)."""
+    lr_mlp: float = 1e-2
+    """Adam learning rate of the colour MLP."""
+    lr_sharpness: float = 1e-2
+    """Adam learning rate of ``log_s``."""
+    train: TrainerConfig = dataclasses.field(
+        default_factory=lambda: TrainerConfig(batch_rays=2048, n_samples=64))
+    """Optimisation budget and schedule (the occupancy band makes 64 samples per ray enough)."""
+
+    @classmethod
+    def tiny(cls, seconds: float = 5.0) -> "NeusConfig":
+        """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
+        return cls(
+            resolution=32, upsample_steps=(), features=4, decoder="mlp", hidden=16, occupancy_resolution=16,
+            occupancy_warmup=16, occupancy_every=16, anneal_steps=20,
+            train=TrainerConfig(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0,
+                                progress=False),
+        )
+
+
+class NeusField(Field):
+    """Signed distance field on a dense grid with NeuS sharpness (see the module docstring)."""
+
+    kind = "sdf"
+
+    def __init__(self, config: NeusConfig, scene_bbox: torch.Tensor) -> None:
+        super().__init__(config, scene_bbox)
+        start = start_resolution(config)
+        occupancy = config.occupancy_resolution
+        lo, hi = self.scene_bbox
+        self.cell = float(((hi - lo) / config.resolution).mean())
+        init = torch.zeros((start + 1) ** 3, 1 + config.features)
+        init[:, 1:].normal_(0.0, 0.1, generator=torch.Generator().manual_seed(0))
+        self.grid = DenseGrid(self.scene_bbox, start, 1 + config.features, init)
+        with torch.no_grad():
+            radius = config.init_radius * float((hi - lo).min()) / 2
+            distance = (self.grid.vertex_points().reshape(-1, 3) - (lo + hi) / 2).norm(dim=-1) - radius
+            self.grid.table[:, 0] = distance / self.cell
+        self.log_sharpness = torch.nn.Parameter(torch.tensor(math.log(config.sharpness_init)))
+        self.color = ColorDecoder(config.features, config.decoder, config.hidden, config.sh_degree)
+        self.occupancy = OccupancyGrid(self.scene_bbox, occupancy) if occupancy else None
+
+    # ---- the Field contract ------------------------------------------------------------------------------------
+    def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """SDF and colour; when ``points`` require grad, ``f`` carries the first-order term ``(x − x̄)·∇f(x̄)``
+        (``x̄`` = detached ``x``; zero in value) so that autograd's ``∂f/∂x`` is the analytic gradient of the grid,
+        differentiable with respect to the grid — the renderer's NeuS cosine then costs no double backward."""
+        values, gradient = self.grid.value_and_gradient(points)
+        sdf = values[:, 0]
+        if points.requires_grad:
+            sdf = sdf + ((points - points.detach()) * gradient[:, :, 0]).sum(-1)
+        return sdf * self.cell, self.color(values[:, 1:], directions)
+
+    def sharpness(self) -> torch.Tensor:
+        return self.log_sharpness.exp() / self.cell
+
+    def occupied(self, points: torch.Tensor) -> torch.Tensor:
+        """Occupancy-grid mask of canonical ``points`` (the box itself without an occupancy grid)."""
+        if self.occupancy is None:
+            lo, hi = self.scene_bbox
+            return ((points >= lo) & (points <= hi)).all(-1)
+        return self.occupancy.occupied(points)
+
+    # ---- training ----------------------------------------------------------------------------------------------
+    def eikonal_loss(self, points: torch.Tensor) -> torch.Tensor:
+        """``mean (|∇f| − 1)²`` at ``points (M,3)`` (the grid's analytic gradient)."""
+        gradient = self.grid.value_and_gradient(points)[1][:, :, 0] * self.cell
+        return (gradient.norm(dim=-1) - 1.0).square().mean()
+
+    def _eikonal_points(self, count: int, generator: torch.Generator) -> torch.Tensor:
+        """``count`` points: half uniform in the box, half uniform in occupied occupancy cells."""
+        lo, hi = self.scene_bbox
+        uniform = torch.rand(count - count // 2, 3, generator=generator).to(lo)
+        points = [lo + uniform * (hi - lo)]
+        if self.occupancy is not None:
+            cells = self.occupancy.mask.nonzero()
+            if len(cells):
+                pick = torch.randint(0, len(cells), (count // 2,), generator=generator).to(cells.device)
+                offset = torch.rand(count // 2, 3, generator=generator).to(lo)
+                points.append(lo + (cells[pick] + offset) * (hi - lo) / self.occupancy.resolution)
+        return torch.cat(points)
+
+    @torch.no_grad()
+    def init_from_hull(self, cameras: Any, coverage: torch.Tensor) -> None:
+        """Set ``f`` at the grid vertices to the signed distance (Euclidean distance transform, scipy) to the visual
+        hull: the vertices that every camera sees on a covered pixel (``coverage (C,H,W)`` bool) — the centres of
+        :class:`OccupancyGrid` cells centred on the vertices, carved with no margin and without keeping what a camera
+        does not see (a box corner out of every side view's frame would otherwise stay in the hull). Kept as is when
+        the hull is empty or fills the box."""
+        from scipy.ndimage import distance_transform_edt
+
+        lo, hi = self.scene_bbox
+        n = self.grid.resolution
+        half = (hi - lo) / (2 * n)
+        hull = OccupancyGrid(torch.stack([lo - half, hi + half]), n + 1)
+        hull.carve(cameras, coverage, margin=0, keep_unseen=False)
+        inside = hull.mask.cpu().numpy()
+        if inside.all() or not inside.any():
+            return
+        width = tuple((2 * half).cpu().tolist())
+        distance = distance_transform_edt(~inside, sampling=width) - distance_transform_edt(inside, sampling=width)
+        distance -= np.where(inside, -1.0, 1.0) * float(half.mean())  # halfway between the vertices in and out
+        self.grid.table[:, 0] = torch.from_numpy(distance.reshape(-1) / self.cell).to(self.grid.table)
+
+    @torch.no_grad()
+    def cell_min_distance(self) -> torch.Tensor:
+        """Exact ``min |f|`` over each occupancy cell ``(R,R,R)``: the distance from 0 to the range of the vertex
+        values of the cell."""
+        k = self.grid.resolution // self.config.occupancy_resolution
+        raw = self.grid.vertex_values()[:1][None]
+        high = F.max_pool3d(raw, kernel_size=k + 1, stride=k)[0, 0]
+        low = -F.max_pool3d(-raw, kernel_size=k + 1, stride=k)[0, 0]
+        return (F.relu(low) + F.relu(-high)) * self.cell
+
+    def update_occupancy(self) -> None:
+        """Occupied ⇔ the cell holds a point with ``|f| ≤ occupancy_band / s`` (within the carved hull)."""
+        if self.occupancy is not None:
+            band = self.config.occupancy_band / float(self.sharpness().detach())
+            self.occupancy.update(-self.cell_min_distance(), -band, self.config.occupancy_dilation)
+
+    def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
+        """Train on ``dataset`` with :func:`nerfedit_plugin.trainer.train` (``trainer`` overrides ``config.train``):
+        colour loss + ``eikonal_weight`` × eikonal loss, cosine annealing over ``anneal_steps``, the occupancy band
+        carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and the grid
+        refined at ``upsample_steps``."""
+        config = self.config
+        generator = torch.Generator().manual_seed((trainer or config.train).seed)
+
+        def callback(step: int) -> bool:
+            refine = step + 1 in config.upsample_steps
+            if refine:
+                self.grid.upsample()
+            since = step + 1 - config.occupancy_warmup
+            if since >= 0 and since % config.occupancy_every == 0:
+                self.update_occupancy()
+            return refine
+
+        def regularizer(step: int) -> torch.Tensor:
+            return config.eikonal_weight * self.eikonal_loss(self._eikonal_points(config.eikonal_points, generator))
+
+        def groups() -> list[dict]:
+            return [{"params": list(self.grid.parameters()), "lr": config.lr_grid},
+                    {"params": [self.log_sharpness], "lr": config.lr_sharpness},
+                    {"params": list(self.color.parameters()), "lr": config.lr_mlp}]
+
+        if dataset.alpha is not None:
+            coverage = dataset.alpha.to(self.scene_bbox.device) > 0
+            if config.init_hull:
+                self.init_from_hull(dataset.cameras, coverage)
+            if self.occupancy is not None and config.carve:
+                self.occupancy.carve(dataset.cameras, coverage)
+        log = train(self, dataset, trainer or config.train, param_groups=groups, regularizer=regularizer,
+                    callback=callback, cos_anneal=lambda step: min(1.0, step / max(config.anneal_steps, 1)),
+                    eval_dataset=eval_dataset)
+        self.update_occupancy()
+        return log
+
+    def extract_mesh(self, resolution: int = 256, level: float | None = None) -> SurfaceMesh:
+        """Marching cubes of the level set ``f = level`` (default 0: the surface) on a ``resolution³`` lattice over
+        ``scene_bbox``; faces wind counter-clockwise seen from outside; vertex colours are the field's RGB at each
+        vertex seen along the inward normal."""
+        level = 0.0 if level is None else float(level)
+        return extract_level_set(lambda x: -self.query(x, torch.zeros_like(x))[0], lambda x, d: self.query(x, d)[1],
+                                 self.scene_bbox, resolution, -level)

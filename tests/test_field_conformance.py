@@ -1,0 +1,37 @@
+"""Every built-in field backend passes the field conformance kit a third-party backend would run, and the kit
+catches a broken field."""
+
+import pytest
+import torch
+
+from nerfedit_plugin.fields.mesh_field import MeshField, MeshFieldConfig
+from nerfedit_plugin.registry import FIELDS, discover
+from nerfedit_plugin.testing_fields import build_field, check_field, check_query
+
+BUILT_IN = ("mesh", "nerf", "neus")
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_built_in_field_conforms(name):
+    registry = discover()
+    assert name in registry.names(FIELDS), f"{name} is not registered: {registry.skipped}"
+    check_field(registry.config_class(FIELDS, name)())
+
+
+class Oversaturated(MeshField):
+    def query(self, points, directions):
+        density, rgb = super().query(points, directions)
+        return density, rgb * 2.0
+
+
+def test_kit_catches_colours_out_of_range():
+    field = build_field(MeshFieldConfig())
+    broken = Oversaturated(field.config, field.scene_bbox)
+    broken.load_state_dict(field.state_dict())
+    with pytest.raises(AssertionError, match="colours outside"):
+        check_query(broken)
+
+
+def test_unknown_check_is_a_usage_error():
+    with pytest.raises(ValueError, match="unknown checks"):
+        check_field(MeshFieldConfig(), skip=("speed",))

@@ -1,0 +1,182 @@
+"""The neus backend: the initial field is a sphere's signed distance, the eikonal loss vanishes exactly on distance
+fields the grid represents exactly, the occupancy band is conservative, the zero level set of the initial field is
+the sphere, training improves PSNR, and checkpoints round trip (and refuse other backends)."""
+
+import numpy as np
+import pytest
+import torch
+
+from nerfedit_plugin.checkpoint import load_field
+from nerfedit_plugin.datasets import load_dataset
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
+from nerfedit_plugin.fields.neus import NeusConfig, NeusField
+from nerfedit_plugin.renderer import RenderConfig
+from nerfedit_plugin.synthetic import GenerateConfig, generate_dataset
+from nerfedit_plugin.trainer import evaluate
+
+BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
+RADIUS = 0.5 * 0.3  # init_radius × the smallest half side of BOX
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    out = tmp_path_factory.mktemp("neus") / "cow"
+    generate_dataset(GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2,
+                                    supersample=1))
+    return out
+
+
+def random_points(n, box=BOX, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    return box[0] + torch.rand(n, 3, generator=g) * (box[1] - box[0])
+
+
+def sdf(field, points):
+    return field.query(points, torch.zeros_like(points))[0]
+
+
+def test_grid_gradient_is_the_derivative_of_the_interpolant():
+    """DenseGrid.value_and_gradient matches forward() and autograd's derivative of it; NeusField.query hands that
+    gradient to autograd (what the renderer's NeuS cosine differentiates) and the gradient stays differentiable
+    with respect to the grid."""
+    from nerfedit_plugin.fields.encoding import DenseGrid
+
+    grid = DenseGrid(BOX, 6, 3, init=torch.randn(7**3, 3, generator=torch.Generator().manual_seed(5)))
+    points = random_points(300, seed=6).requires_grad_(True)
+    values, gradient = grid.value_and_gradient(points)
+    torch.testing.assert_close(values, grid(points))
+    for c in range(3):
+        (expected,) = torch.autograd.grad(grid(points)[:, c].sum(), points)
+        torch.testing.assert_close(gradient[:, :, c], expected, atol=1e-4, rtol=1e-4)
+    field = NeusConfig(resolution=8, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    with torch.no_grad():
+        field.grid.table.normal_(generator=torch.Generator().manual_seed(7))
+    sdf, _ = field.query(points, torch.zeros_like(points))
+    (through_query,) = torch.autograd.grad(sdf.sum(), points, create_graph=True)
+    (plain,) = torch.autograd.grad(field.grid(points)[:, 0].sum() * field.cell, points)
+    torch.testing.assert_close(through_query, plain, atol=1e-4, rtol=1e-4)
+    assert torch.autograd.grad(through_query.square().sum(), field.grid.table)[0].abs().sum() > 0
+
+
+def test_initial_field_is_the_signed_distance_of_a_sphere():
+    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    vertices = field.grid.vertex_points().reshape(-1, 3)
+    torch.testing.assert_close(sdf(field, vertices), vertices.norm(dim=1) - RADIUS, atol=1e-6, rtol=0)
+    # between vertices, trilinear interpolation errs by at most Σₐ hₐ²/8 · max|∂ₐ²f| ≤ 3h²/(8ρ) with ρ the least
+    # distance from the centre over the point's cell (|∂ₐ²|x|| ≤ 1/|x|)
+    points = random_points(20_000)
+    h = float((BOX[1] - BOX[0]).max()) / 32
+    rho = points.norm(dim=1) - 3**0.5 * h
+    points, rho = points[rho > RADIUS / 2], rho[rho > RADIUS / 2]
+    error = (sdf(field, points) - (points.norm(dim=1) - RADIUS)).abs()
+    assert error.max() > 1e-4 and (error <= 3 * h * h / (8 * rho) + 1e-6).all()
+    assert field.kind == "sdf" and float(field.sharpness() * field.cell) == pytest.approx(field.config.sharpness_init)
+
+
+def test_eikonal_loss_vanishes_on_exact_distance_fields():
+    """Zero for a plane's distance (affine: represented exactly), one for twice that distance, near zero for the
+    sphere's interpolated distance."""
+    field = NeusConfig(resolution=16, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    points = random_points(5000, seed=1)
+    normal = torch.nn.functional.normalize(torch.tensor([1.0, -2.0, 0.5]), dim=0)
+    vertices = field.grid.vertex_points().reshape(-1, 3)
+    with torch.no_grad():  # a plane's signed distance is affine: the grid represents it exactly
+        field.grid.table[:, 0] = (vertices @ normal - 0.1) / field.cell
+    assert float(field.eikonal_loss(points)) == pytest.approx(0.0, abs=1e-10)
+    with torch.no_grad():  # twice the distance: |∇f| = 2 everywhere
+        field.grid.table[:, 0] *= 2
+    assert float(field.eikonal_loss(points)) == pytest.approx(1.0, abs=1e-5)
+    # the initial sphere: |∇f| = 1 up to the interpolation error, away from the centre's cell
+    sphere = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    far = points[points.norm(dim=1) > 0.15]
+    assert sphere.eikonal_loss(far) < 1e-3
+    assert sphere.eikonal_loss(far) < field.eikonal_loss(far)
+
+
+def test_occupancy_band_is_exact_and_conservative():
+    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=8, occupancy_dilation=0,
+                       sharpness_init=1.0).setup(scene_bbox=BOX)
+    with torch.no_grad():
+        field.grid.table[:, 0] += torch.randn(33**3, generator=torch.Generator().manual_seed(2))
+    field.update_occupancy()
+    band = field.config.occupancy_band / float(field.sharpness())
+    assert 0.05 < field.occupancy.fraction < 0.95
+    points = random_points(200_000, seed=3)
+    near = sdf(field, points).abs() <= band
+    assert near.any() and field.occupied(points)[near].all()
+    # exact: every occupied cell holds a grid vertex within the band or a sign change
+    assert field.cell_min_distance().le(band).eq(field.occupancy.mask).all()
+
+
+def test_extract_mesh_of_the_initial_sphere():
+    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    mesh = field.extract_mesh(resolution=64)
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    h = float((BOX[1] - BOX[0]).max()) / 32
+    assert np.abs(r - RADIUS).max() < h * h / RADIUS  # the zero set of the interpolated distance
+    area = mesh.to_trimesh().area
+    assert area == pytest.approx(4 * np.pi * RADIUS**2, rel=0.02)
+    v = mesh.vertices[mesh.faces]
+    normals = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    assert (np.einsum("ij,ij->i", normals, v.mean(1)) > 0).all()  # faces wind outward
+    assert mesh.vertex_colors.shape == (len(mesh.vertices), 3)
+    with pytest.raises(ValueError, match="outside the range"):
+        field.extract_mesh(resolution=16, level=5.0)
+
+
+def test_visual_hull_initialisation_of_a_ball(tmp_path):
+    """The signed distance to the visual hull of a rendered ball: negative at every vertex inside the ball (the hull
+    contains the object), positive a little outside it (only what every camera sees can be inside) and close to the
+    ball's own distance near its surface."""
+    import trimesh
+
+    from nerfedit_plugin.mesh import SurfaceMesh
+
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    SurfaceMesh(ball.vertices, ball.faces).save(tmp_path / "ball.ply")
+    data = load_dataset(generate_dataset(GenerateConfig(out=tmp_path / "data", mesh=str(tmp_path / "ball.ply"),
+                                                        resolution=48, n_train=12, n_val=1, n_test=1)))
+    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=data.scene_bbox)
+    field.init_from_hull(data.cameras, data.alpha > 0)
+    vertices = field.grid.vertex_points().reshape(-1, 3)
+    radius, truth = 0.5, vertices.norm(dim=1) - 0.5  # the generator scales the ball to a diameter of 1
+    values = sdf(field, vertices)
+    assert (values[truth < -0.03] < 0).all() and (values[truth > 0.05] > 0).all()
+    near = truth.abs() < 0.1
+    assert (values[near] - truth[near]).abs().mean() < 0.02 * radius * 2
+
+
+def test_training_improves_test_psnr_and_checkpoint_round_trips(tiny_scene, tmp_path):
+    train, test = load_dataset(tiny_scene, "train"), load_dataset(tiny_scene, "test")
+    config = NeusConfig.tiny(seconds=600.0)  # the step budget binds: same result on a busy machine
+    config.train.max_steps, config.train.batch_rays = 40, 512
+    config.upsample_steps, config.resolution = (20,), 64
+    field = config.setup(scene_bbox=train.scene_bbox)
+    sharpness = float(field.sharpness())
+    log = field.fit(train, eval_dataset=test)
+    (t0, before), (t1, after) = log["eval"][0], log["eval"][-1]
+    assert t0 == 0.0 and t1 > 0 and log["steps"] == 40
+    assert after > before + 2.0, log["eval"]
+    assert field.grid.resolution == 64 and float(field.sharpness()) > sharpness  # refined; surface sharpened
+    field.save(tmp_path / "field.pt")
+    loaded = load_field(tmp_path / "field.pt", backend="neus")
+    assert isinstance(loaded, NeusField) and loaded.grid.resolution == 64
+    assert torch.equal(loaded.occupancy.mask, field.occupancy.mask)
+    assert torch.equal(loaded.sharpness(), field.sharpness())
+    points = random_points(500, train.scene_bbox)
+    dirs = torch.nn.functional.normalize(torch.randn(500, 3), dim=-1)
+    for a, b in zip(loaded.query(points, dirs), field.query(points, dirs)):
+        torch.testing.assert_close(a, b)
+    assert evaluate(loaded, test, RenderConfig()) == pytest.approx(evaluate(field, test, RenderConfig()), abs=1e-4)
+
+
+def test_checkpoint_of_another_backend_is_refused(tmp_path):
+    NeusConfig.tiny().setup(scene_bbox=BOX).save(tmp_path / "neus.pt")
+    NerfConfig.tiny().setup(scene_bbox=BOX).save(tmp_path / "nerf.pt")
+    with pytest.raises(NerfEditError, match="checkpoint of the 'neus' field backend, not 'nerf'"):
+        load_field(tmp_path / "neus.pt", backend="nerf")
+    with pytest.raises(NerfEditError, match="checkpoint of the 'nerf' field backend .*not NeusField"):
+        NeusField.load(tmp_path / "nerf.pt")
+    with pytest.raises(NerfEditError, match="checkpoint of the 'neus' field backend .*not NerfField"):
+        NerfField.load(tmp_path / "neus.pt")
