@@ -55,6 +55,12 @@ class TrainerConfig:
     progress: bool = True
     """Show a rich progress bar with the loss and PSNR."""
 
+    @classmethod
+    def tiny(cls, seconds: float = 5.0) -> "TrainerConfig":
+        """The budget of the backends' ``tiny`` presets (tests, smoke runs): ``seconds`` of small batches, no
+        intermediate evaluation, no progress bar."""
+        return cls(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0, progress=False)
+
 
 def psnr(mse: float | torch.Tensor) -> float:
     """Peak signal-to-noise ratio of images in [0,1]: ``−10 log10(mse)``."""

@@ -26,3 +26,14 @@ def capsule_proxy(capsule, proxy_cache):
 
     proxy, _ = cached_proxy(capsule, ProxyConfig(), proxy_cache)
     return proxy
+
+
+@pytest.fixture(scope="session")
+def tiny_scene(tmp_path_factory):
+    """A 32×32 Blender dataset of the pymeshlab cow (8 train, 1 val, 2 test views) for training tests."""
+    from nerfedit_plugin.synthetic import GenerateConfig, generate_dataset
+
+    out = tmp_path_factory.mktemp("tiny-scene") / "cow"
+    generate_dataset(GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2,
+                                    supersample=1))
+    return out

@@ -10,18 +10,9 @@ import torch
 from nerfedit_plugin.datasets import load_dataset
 from nerfedit_plugin.fields.encoding import DenseGrid, spherical_harmonics
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
-from nerfedit_plugin.synthetic import GenerateConfig, generate_dataset
 from nerfedit_plugin.trainer import evaluate
 
 BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
-
-
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("nerf") / "cow"
-    generate_dataset(GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2,
-                                    supersample=1))
-    return out
 
 
 def random_points(n, box=BOX, seed=0):

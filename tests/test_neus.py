@@ -19,14 +19,6 @@ BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
 RADIUS = 0.5 * 0.3  # init_radius × the smallest half side of BOX
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("neus") / "cow"
-    generate_dataset(GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2,
-                                    supersample=1))
-    return out
-
-
 def random_points(n, box=BOX, seed=0):
     g = torch.Generator().manual_seed(seed)
     return box[0] + torch.rand(n, 3, generator=g) * (box[1] - box[0])

@@ -91,8 +91,7 @@ class NerfConfig(FieldConfig):
         return cls(
             resolution=32, features=4, decoder="mlp", hidden=16, occupancy_resolution=16, occupancy_warmup=48,
             occupancy_every=16,
-            train=TrainerConfig(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0,
-                                progress=False),
+            train=TrainerConfig.tiny(seconds),
         )
 
 

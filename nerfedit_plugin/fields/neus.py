@@ -102,8 +102,7 @@ class NeusConfig(FieldConfig):
         return cls(
             resolution=32, upsample_steps=(), features=4, decoder="mlp", hidden=16, occupancy_resolution=16,
             occupancy_warmup=16, occupancy_every=16, anneal_steps=20,
-            train=TrainerConfig(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0,
-                                progress=False),
+            train=TrainerConfig.tiny(seconds),
         )
 
 
