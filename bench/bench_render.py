@@ -7,9 +7,9 @@ Scene: a capsule (subdivided so its surface can bend) with the generator's textu
    vs a direct render of the deformed mesh (``synthetic.render_mesh``, what ``render_ground_truth`` writes), same
    cameras and supersampling; PSNR / SSIM per lift (tet-arap, closest-point, knn3). Target tet-arap ≥ 35 dB.
 2. Cost of ray bending (anchor: the unedited render of the same field, camera and samples per ray): edited time /
-   unedited time, target ≤ 1.25×, for the mesh field and for the ``nerf`` backend's plain dense grid (density +
+   unedited time, target ≤ 1.25×, for the mesh field, for the ``nerf`` backend's plain dense grid (density +
    RGB, 64³, occupancy grid 32³) filled from the mesh (a stand-in for a trained field: opaque inside, empty
-   outside). The one-time point-locator builds of a frame are reported separately.
+   outside) and for the ``neus`` backend's SDF grid filled with the mesh's signed distance. The one-time point-locator builds of a frame are reported separately.
 
 Usage: ``python bench/bench_render.py [--quick] [--threads N] [--repeats N]`` (quick: 64×64, no supersampling, one
 camera). Times are wall clock and process CPU time (best of the repeats); the CPU ratio with ``--threads 1`` is the
@@ -36,6 +36,7 @@ from nerfedit_plugin.cameras import Cameras, look_at  # noqa: E402
 from nerfedit_plugin.deformation_field import DeformationField  # noqa: E402
 from nerfedit_plugin.fields.mesh_field import MeshField  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField  # noqa: E402
+from nerfedit_plugin.fields.neus import NeusConfig, NeusField  # noqa: E402
 from nerfedit_plugin.lift import Lift  # noqa: E402
 from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.proxy import ProxyConfig, cached_proxy  # noqa: E402
@@ -68,6 +69,26 @@ def grid_field(mesh: SurfaceMesh, box: torch.Tensor) -> NerfField:
     with torch.no_grad():
         field.grid.table[:, 0] = torch.where(inside, 200.0, -30.0) - field.shift
         field.grid.table[:, 1:] = torch.logit(colors)
+    field.update_occupancy()
+    return field
+
+
+def sdf_field(mesh: SurfaceMesh, box: torch.Tensor) -> NeusField:
+    """The neus backend's dense SDF+RGB grid holding the mesh's signed distance (Open3D), sharpness s·h = 4,
+    surface colours: a stand-in for a trained NeuS field (every sample also needs the SDF gradient)."""
+    import open3d as o3d
+
+    config = NeusConfig(resolution=64, features=3, decoder="rgb", upsample_steps=(), occupancy_resolution=32)
+    field = NeusField(config, box)
+    lattice = field.grid.vertex_points().reshape(-1, 3)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh.to_open3d()))
+    distance = torch.from_numpy(scene.compute_signed_distance(o3d.core.Tensor(lattice.numpy())).numpy())
+    colors = MeshField.from_mesh(mesh).surface_colors(lattice).clamp(1e-3, 1 - 1e-3)
+    with torch.no_grad():
+        field.grid.table[:, 0] = distance.to(field.grid.table) / field.cell
+        field.grid.table[:, 1:] = torch.logit(colors)
+        field.log_sharpness.fill_(math.log(4.0))
     field.update_occupancy()
     return field
 
@@ -130,7 +151,8 @@ def main() -> None:
     deformation = DeformationField(proxy.vertices, proxy.tets, lifted["tet-arap"])  # fresh: time its builds
     seconds, _ = timed(lambda: deformation.to_canonical(torch.zeros(1, 3), 0))
     print(f"   one-time point-locator builds (rest proxy + frame 0): {seconds:.2f} s")
-    for name, subject in (("mesh", field), ("dense grid", grid_field(mesh, box.float()))):
+    subjects = (("mesh", field), ("dense grid", grid_field(mesh, box.float())), ("sdf grid", sdf_field(mesh, box.float())))
+    for name, subject in subjects:
         times: dict[str, list[tuple[float, float]]] = {"unedited": [], "edited": []}
         for repeat in range(args.repeats + 1):  # interleaved, the first round is a warm-up; best of the others
             for key, bending in (("unedited", None), ("edited", deformation)):
