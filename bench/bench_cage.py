@@ -1,7 +1,7 @@
 """Cage deformer speed on the pymeshlab bunny (28k vertices) against its automatic ~300-vertex cage.
 
 - Bind (``CageDeformer.bind`` with the cage given as a file: load + checks + mean value coordinates of every mesh
-  vertex with winding numbers for the enclosure warning + handle targets), target ≤ 1 s.
+  vertex + the enclosure test for the outside warning (Open3D ray parity) + handle targets), target ≤ 1 s.
   Anchor measured in the same run: one ``np.arctan2`` pass over a (vertices × cage faces) float64 array — the
   cost of touching every (point, face) pair once with one transcendental; MVC needs a few dozen such passes.
 - Each new cage pose = one dense product of the precomputed (cage vertices × mesh vertices) weights, target

@@ -31,6 +31,8 @@ from nerfedit_plugin.mesh import SurfaceMesh
 from .green import green_coordinates, green_face_terms
 from .mean_value import mean_value_coordinates
 
+NEAR_CAGE = 1e-4  # closer to the cage than this × its size: the exact winding number decides inside / outside
+
 
 @dataclasses.dataclass
 class CageConfig(DeformerConfig):
@@ -47,7 +49,7 @@ class CageConfig(DeformerConfig):
     twice, when simplification would leave mesh vertices outside)."""
     auto_max_vertices: int = 400
     """``"cage": "auto"``: simplify the wrap (quadric edge collapse) to at most this many vertices."""
-    chunk_size: int = 32
+    chunk_size: int = 64
     """Points per block when evaluating coordinates (memory ≈ 40 · cage faces · chunk_size floats per thread)."""
 
 
@@ -89,6 +91,26 @@ def validate_cage(cage: SurfaceMesh, label: str) -> SurfaceMesh:
                             "(merge duplicate vertices — Blender: Merge by Distance — and fill holes)")
     volume = np.einsum("fi,fi->f", v[faces[:, 0]], np.cross(v[faces[:, 1]], v[faces[:, 2]])).sum() / 6.0
     return cage if volume > 0 else SurfaceMesh(v, faces[:, ::-1].copy())
+
+
+def enclosure(points: np.ndarray, cage: SurfaceMesh) -> tuple[np.ndarray, np.ndarray]:
+    """Masks ``(inside, outside)`` of ``points`` w.r.t. the closed ``cage``; points on the cage are neither.
+
+    Open3D ray parity (float32, majority of 3 rays) decides points farther than ``NEAR_CAGE`` × cage size from
+    the cage; the exact winding number of the mean value kernel (±1 inside, 0 outside, ½ on the cage) decides
+    the few closer ones."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(cage.vertices.astype(np.float32)), o3d.core.Tensor(cage.faces.astype(np.uint32)))
+    query = o3d.core.Tensor(points.astype(np.float32))
+    inside = scene.compute_occupancy(query, nsamples=3).numpy() > 0.5
+    outside = ~inside
+    near = np.flatnonzero(scene.compute_distance(query).numpy() <= NEAR_CAGE * cage.bbox_diagonal)
+    if near.size:
+        _, winding = mean_value_coordinates(points[near], cage.vertices, cage.faces, return_winding=True)
+        inside[near], outside[near] = np.abs(winding) > 0.5, np.abs(winding) < 0.5
+    return inside, outside
 
 
 def _load_cage(spec: EditSpec, key: str) -> SurfaceMesh:
@@ -157,43 +179,40 @@ class CageDeformer(Deformer):
             poses[:, idx] = targets
 
         self.rest_cage, self.deformed_cages, self._last = cage, poses, None
-        self._weights, outside = self._coordinates(rest.vertices, *mean_value)
+        self._weights, outside = self._coordinates(rest.vertices, mean_value)
         if outside:
             fallback = ("mean value coordinates extrapolate them" if self.config.coordinates == "mvc"
                         else "Green coordinates are undefined there; they use mean value coordinates")
             warnings.warn(f"{label}: {outside} of {rest.n_vertices} mesh vertices lie outside the cage ({fallback})",
                           stacklevel=2)
 
-    def _mean_value(self, points: np.ndarray, cage: SurfaceMesh) -> tuple[np.ndarray, np.ndarray]:
-        """Mean value coordinates ``(P, C)`` and winding numbers ``(P,)`` of ``points`` in ``cage``."""
-        return mean_value_coordinates(points, cage.vertices, cage.faces, chunk_size=self.config.chunk_size,
-                                      return_winding=True)
+    def _mean_value(self, points: np.ndarray, cage: SurfaceMesh) -> np.ndarray:
+        """Mean value coordinates ``(P, C)`` of ``points`` in ``cage``."""
+        return mean_value_coordinates(points, cage.vertices, cage.faces, chunk_size=self.config.chunk_size)
 
-    def _auto_cage(self, rest: SurfaceMesh, label: str) -> tuple[SurfaceMesh, tuple[np.ndarray, np.ndarray]]:
+    def _auto_cage(self, rest: SurfaceMesh, label: str) -> tuple[SurfaceMesh, np.ndarray]:
         """The automatic cage and the mesh's mean value coordinates in it. Simplification can cut into the mesh:
         then wrap again farther out (offset ×2, ×4) until every vertex is inside."""
         cfg = self.config
         for attempt in range(3):
             wrap = auto_cage(rest, cfg.auto_alpha, cfg.auto_offset * 2**attempt, cfg.auto_max_vertices)
             cage = validate_cage(wrap, label)
-            phi, winding = self._mean_value(rest.vertices, cage)
-            if not np.any(np.abs(winding) < 0.5):
+            if not np.any(enclosure(rest.vertices, cage)[1]):
                 break
-        return cage, (phi, winding)
+        return cage, self._mean_value(rest.vertices, cage)
 
-    def _coordinates(self, points: np.ndarray, phi: np.ndarray,
-                     winding: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray | None], int]:
+    def _coordinates(self, points: np.ndarray, phi: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray | None], int]:
         """``((phiᵀ (C, P), psiᵀ (F, P) or None), number of points outside the cage)`` from the points' mean value
-        coordinates and winding numbers in the rest cage; transposed so a pose is one C-contiguous product."""
+        coordinates ``phi`` in the rest cage; transposed so a pose is one C-contiguous product."""
         cage, chunk = self.rest_cage, self.config.chunk_size
-        inside = np.abs(winding) > 0.5  # on the cage (winding ½) counts neither as inside nor as outside
-        outside = int(np.count_nonzero(np.abs(winding) < 0.5))
+        inside, outside = enclosure(points, cage)
+        n_outside = int(np.count_nonzero(outside))
         if self.config.coordinates == "mvc":
-            return (phi.T, None), outside
+            return (phi.T, None), n_outside
         phi_t, psi_t = phi.T, np.zeros((len(cage.faces), len(points)))  # inside columns become Green coordinates
         green_phi, green_psi = green_coordinates(points[inside], cage.vertices, cage.faces, chunk_size=chunk)
         phi_t[:, inside], psi_t[:, inside] = green_phi.T, green_psi.T
-        return (phi_t, psi_t), outside
+        return (phi_t, psi_t), n_outside
 
     # ---- evaluation --------------------------------------------------------------------------------------------
     def _apply(self, weights: tuple[np.ndarray, np.ndarray | None], frame: int) -> np.ndarray:
@@ -215,7 +234,7 @@ class CageDeformer(Deformer):
             raise RuntimeError("CageDeformer.deform_points() called before bind()")
         points = np.asarray(points, dtype=np.float64)
         if self._last is None or not np.array_equal(self._last[0], points):
-            self._last = (points.copy(), self._coordinates(points, *self._mean_value(points, self.rest_cage))[0])
+            self._last = (points.copy(), self._coordinates(points, self._mean_value(points, self.rest_cage))[0])
         return self._apply(self._last[1], frame)
 
     def write_artifacts(self, out_dir: Path) -> list[Path]:

@@ -9,8 +9,8 @@ c_j, s_j = cosine and sine of the spherical triangle's angle at u_j. We evaluate
 that loses digits near the cage:
 
 * arcs from distances only: for an edge (a, b) of length ℓ, num = ℓ² − (d_a − d_b)² = 4d_ad_b sin²(θ/2) and
-  den = (d_a + d_b)² − ℓ² = 4d_ad_b cos²(θ/2), so θ = 2 atan2(√num, √den) (pairs with θ ≈ 0 or π, where
-  these differences cancel, are recomputed from unit vectors);
+  den = (d_a + d_b)² − ℓ² = 4d_ad_b cos²(θ/2), so θ = 2 atan √(num/den) and sin θ = 2 √(num·den) / (num + den)
+  (pairs with θ ≈ 0 or π, where these differences cancel, are recomputed from unit vectors);
 * law of cosines c_j = P_j / (sin θ_{j+1} sin θ_{j+2}), P_j = cos θ_j − cos θ_{j+1} cos θ_{j+2}, and law of
   sines sin θ_{k+1} s_{k+2} = det[u₀,u₁,u₂] / sin θ_k with det[u₀,u₁,u₂] d₀d₁d₂ = n_f·(v_{i₀} − x)
   (n_f the face's area normal: one matrix product for all faces). With μ = θ / sin θ this gives
@@ -105,9 +105,10 @@ def mean_value_coordinates(
 
     def work(first: int) -> None:
         kernel = _Kernel(cage, min(chunk_size, len(points)), return_winding)
-        for start in starts[first::workers]:
-            block = slice(start, start + chunk_size)
-            coords[:, block], winding[block] = kernel(points[block])
+        with np.errstate(divide="ignore", invalid="ignore"):  # 0/0 at degenerate positions, overwritten afterwards
+            for start in starts[first::workers]:
+                block = slice(start, start + chunk_size)
+                coords[:, block], winding[block] = kernel(points[block])
 
     with ThreadPoolExecutor(max_workers=workers) as pool:  # numpy releases the GIL inside the kernels
         list(pool.map(work, range(workers)))
@@ -120,12 +121,18 @@ class _Kernel:
     def __init__(self, cage: CageGeometry, size: int, with_winding: bool) -> None:
         n_v, n_e, n_f = len(cage.vertices), len(cage.edges), len(cage.faces)
         self.cage, self.size, self.with_winding = cage, size, with_winding
-        self.len2 = (cage.lengths**2)[:, None]
-        self.plane_tol = (PLANE_EPS * cage.scale * cage.area2)[:, None]
+        # per-row constants spelled out over the chunk: broadcasting a (rows, 1) operand costs numpy a buffer copy
+        self.len2 = np.repeat((cage.lengths**2)[:, None], size, axis=1)
+        self.plane_tol = np.repeat((PLANE_EPS * cage.scale * cage.area2)[:, None], size, axis=1)
+        self.planes = np.hstack([-cage.normals, cage.offsets[:, None]])  # (F, 4) · (x, 1) = n_f·(v₀ − x)
+        self.x1 = np.ones((4, size))
+        self.corners = np.ascontiguousarray(cage.faces.T).reshape(-1)  # corner k of face f = row kF + f
+        self.opposite = np.ascontiguousarray(cage.face_edges.T).reshape(-1)
         self.dist, self.vtmp = np.empty((2, n_v, size))
-        self.da, self.db, self.num, self.den, self.both, self.theta, self.etmp = np.empty((7, n_e, size))
+        self.da, self.db, self.num, self.den, self.both, self.half, self.sin2 = np.empty((7, n_e, size))
         self.edge_q = np.empty((3, n_e, size))  # per edge: cos θ, μ = θ / sin θ, θ sin θ
-        self.face_q = np.empty((3, 3, n_f, size))  # the same, gathered for the edge opposite each corner
+        self.face_q = np.empty((3, 3, n_f, size))  # the same for the edge opposite each corner
+        self.corner_d = np.empty((3, n_f, size))
         self.dprod, self.vol, self.inv_det, self.ftmp = np.empty((4, n_f, size))
         self.in_plane = np.empty((n_f, size), dtype=bool)
         self.near = np.empty((n_e, size), dtype=bool)
@@ -136,9 +143,8 @@ class _Kernel:
         n = len(x)
         if n < self.size:  # last chunk: pad with copies of its last point
             x = np.concatenate([x, np.repeat(x[-1:], self.size - n, axis=0)])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            on_edge = self._edges(x)
-            lam, winding = self._faces(x)
+        on_edge = self._edges(x)
+        lam, winding = self._faces(x)
         self._degenerate(x, lam, winding, on_edge)
         return lam[:, :n], winding[:n]
 
@@ -152,61 +158,61 @@ class _Kernel:
             dist += vtmp
         np.sqrt(dist, out=dist)
 
-        da, db, num, den, both, tmp = self.da, self.db, self.num, self.den, self.both, self.etmp
+        da, db, num, den, both, half, sin2 = self.da, self.db, self.num, self.den, self.both, self.half, self.sin2
         np.take(dist, cage.edges[:, 0], axis=0, out=da, mode="clip")
         np.take(dist, cage.edges[:, 1], axis=0, out=db, mode="clip")
-        np.subtract(da, db, out=tmp)
-        np.square(tmp, out=tmp)
-        np.subtract(self.len2, tmp, out=num)  # 4 d_a d_b sin²(θ/2)
-        np.add(da, db, out=tmp)
-        np.square(tmp, out=tmp)
-        np.subtract(tmp, self.len2, out=den)  # 4 d_a d_b cos²(θ/2)
+        np.subtract(da, db, out=num)
+        np.square(num, out=num)
+        np.subtract(self.len2, num, out=num)  # 4 d_a d_b sin²(θ/2)
+        da += db
+        np.square(da, out=den)
+        den -= self.len2  # 4 d_a d_b cos²(θ/2)
         np.add(num, den, out=both)  # 4 d_a d_b
         cos, mu, tsin = self.edge_q
         np.subtract(den, num, out=cos)
         cos /= both
-        np.arccos(cos, out=self.theta)  # accurate away from θ ≈ 0, π
+        np.divide(num, den, out=half)
+        np.sqrt(half, out=half)  # tan(θ/2)
+        np.multiply(half, den, out=sin2)  # sin θ / 2 = tan(θ/2) cos²(θ/2) = √(num·den) / both
+        sin2 /= both
+        np.arctan(half, out=half)  # θ/2: accurate away from θ ≈ 0, π (where num or den cancels)
 
-        # θ ≈ 0 or π (x near an edge's line): num or den cancels; recompute those pairs from unit vectors
-        np.abs(cos, out=tmp)
-        np.greater_equal(tmp, 1.0 - 2.0 * NEAR_LINE, out=self.near)
+        # θ ≈ 0 or π (x near an edge's line, min(num, den) ≤ NEAR_LINE·both): recompute those pairs from unit vectors
+        np.greater(sin2, np.sqrt(NEAR_LINE * (1.0 - NEAR_LINE)), out=self.near)
+        np.logical_not(self.near, out=self.near)  # also catches NaN from num or den rounding below 0
         on_edge = (cage.edges[:0, 0], cage.edges[:0, 0])
-        rows = np.flatnonzero(self.near.any(1))
-        if rows.size:
-            ei, pi = np.nonzero(self.near[rows])
-            ei = rows[ei]
+        ei, pi = np.divmod(np.flatnonzero(self.near), self.size)
+        if ei.size:
             rel = [cage.vertices[cage.edges[ei, j]] - x[pi] for j in (0, 1)]
             unit = [r / dist[cage.edges[ei, j], pi][:, None] for j, r in enumerate(rel)]
             sin_half = 0.5 * np.linalg.norm(unit[0] - unit[1], axis=1)
             cos_half = 0.5 * np.linalg.norm(unit[0] + unit[1], axis=1)
-            num[ei, pi], den[ei, pi] = both[ei, pi] * sin_half**2, both[ei, pi] * cos_half**2
             cos[ei, pi] = (cos_half - sin_half) * (cos_half + sin_half)
-            self.theta[ei, pi] = 2.0 * np.arctan2(sin_half, cos_half)
-            line_dist = np.linalg.norm(np.cross(rel[0], rel[1]), axis=1) / cage.lengths[ei]
-            close = (cos_half < sin_half) & (line_dist <= EDGE_EPS * cage.scale)  # on the segment
-            on_edge = (ei[close], pi[close])
+            half[ei, pi] = np.arctan2(sin_half, cos_half)
+            sin2[ei, pi] = sin_half * cos_half
+            behind = np.flatnonzero(cos_half < sin_half)  # θ ≈ π: x beside the segment, between its ends
+            if behind.size:
+                line_dist = np.linalg.norm(np.cross(rel[0][behind], rel[1][behind]), axis=1) / cage.lengths[ei[behind]]
+                close = behind[line_dist <= EDGE_EPS * cage.scale]  # on the segment
+                on_edge = (ei[close], pi[close])
 
-        np.multiply(num, den, out=tmp)  # sin θ = 2 √(num·den) / both
-        np.sqrt(tmp, out=tmp)
-        tmp *= 2.0
-        tmp /= both
-        np.divide(self.theta, tmp, out=mu)
-        np.multiply(self.theta, tmp, out=tsin)
+        np.divide(half, sin2, out=mu)  # θ / sin θ
+        np.multiply(half, sin2, out=tsin)
+        tsin *= 4.0  # θ sin θ
         return on_edge
 
     def _faces(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cage, fq, p, ftmp = self.cage, self.face_q, self.p, self.ftmp
+        n_f = len(cage.faces)
         for q in range(3):
-            for k in range(3):
-                np.take(self.edge_q[q], cage.face_edges[:, k], axis=0, out=fq[q, k], mode="clip")
+            np.take(self.edge_q[q], self.opposite, axis=0, out=fq[q].reshape(3 * n_f, self.size), mode="clip")
         cos, mu, tsin = fq  # (3, F, P) each: index = corner
 
-        np.take(self.dist, cage.faces[:, 0], axis=0, out=self.dprod, mode="clip")
-        for k in (1, 2):
-            np.take(self.dist, cage.faces[:, k], axis=0, out=ftmp, mode="clip")
-            self.dprod *= ftmp
-        np.matmul(cage.normals, x.T, out=self.vol)
-        np.subtract(cage.offsets[:, None], self.vol, out=self.vol)  # n_f·(v₀ − x) = det[u₀,u₁,u₂] d₀d₁d₂
+        np.take(self.dist, self.corners, axis=0, out=self.corner_d.reshape(3 * n_f, self.size), mode="clip")
+        np.multiply(self.corner_d[0], self.corner_d[1], out=self.dprod)
+        self.dprod *= self.corner_d[2]
+        self.x1[:3] = x.T
+        np.matmul(self.planes, self.x1, out=self.vol)  # n_f·(v₀ − x) = det[u₀,u₁,u₂] d₀d₁d₂
         np.abs(self.vol, out=ftmp)
         np.less_equal(ftmp, self.plane_tol, out=self.in_plane)
         np.divide(self.dprod, self.vol, out=self.inv_det)
@@ -262,8 +268,8 @@ class _Kernel:
             lam[a, pi], lam[b, pi] = db / (da + db), da / (da + db)
             winding[pi] = 0.5
         at_vertex = self.dist <= VERTEX_EPS * cage.scale
-        cols = np.flatnonzero(at_vertex.any(0))
-        if cols.size:
+        if np.count_nonzero(at_vertex):
+            cols = np.flatnonzero(at_vertex.any(0))
             lam[:, cols] = 0.0
             lam[at_vertex[:, cols].argmax(0), cols] = 1.0
             winding[cols] = 0.5

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformers.cage import CageConfig, CageDeformer, auto_cage, validate_cage
+from deformers.cage import CageConfig, CageDeformer, auto_cage, enclosure, validate_cage
 from deformers.mean_value import mean_value_coordinates
 from nerfedit_plugin.editspec import parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
@@ -193,6 +193,24 @@ def test_cage_that_misses_points_warns_and_still_maps_affinely(coordinates, file
     _, winding = mean_value_coordinates(REST.vertices, small.vertices, small.faces, return_winding=True)
     assert outside == np.count_nonzero(np.abs(winding) < 0.5) > 0
     assert np.abs(out[0] - (REST.vertices @ r.T + b)).max() < 1e-9  # MVC extrapolate affine maps exactly
+
+
+def test_enclosure_agrees_with_winding_numbers_on_and_next_to_the_cage():
+    """Ray parity decides far points, the exact winding number the ones within NEAR_CAGE: points 1e-9 inside or
+    outside a face are classified like their winding number, points on a face are neither inside nor outside."""
+    cage = validate_cage(CAGE, "cage")
+    rng = np.random.default_rng(3)
+    faces = rng.integers(0, len(cage.faces), 200)
+    on_face = np.einsum("pk,pki->pi", rng.dirichlet([1, 1, 1], 200), cage.vertices[cage.faces[faces]])
+    normal = np.cross(*(cage.vertices[cage.faces[faces, k]] - cage.vertices[cage.faces[faces, 0]] for k in (1, 2)))
+    step = 1e-9 * cage.bbox_diagonal * normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    far = rng.uniform(cage.vertices.min(0) * 1.2, cage.vertices.max(0) * 1.2, size=(400, 3))
+    points = np.concatenate([on_face - step, on_face + step, on_face, far])
+    inside, outside = enclosure(points, cage)
+    _, winding = mean_value_coordinates(points, cage.vertices, cage.faces, return_winding=True)
+    assert np.array_equal(inside, np.abs(winding) > 0.5) and np.array_equal(outside, np.abs(winding) < 0.5)
+    assert inside[:200].all() and outside[200:400].all() and not (inside | outside)[400:600].any()
+    assert inside[600:].any() and outside[600:].any()
 
 
 def test_enclosing_cage_does_not_warn(files, tmp_path):
