@@ -110,3 +110,22 @@ def test_trained_run_records_its_data_relative_and_camera_distance(scene, tmp_pa
     assert run.camera_distance() == pytest.approx(2.5, rel=1e-3)  # the generator's camera radius
     field = run.field("cpu")
     assert field.grid.resolution == 16 and not torch.isnan(field.grid.table).any()
+
+
+def test_animated_edit_renders_every_frame(scene, mesh_run, tmp_path, monkeypatch):
+    monkeypatch.setenv("NERFEDIT_CACHE", str(scene / "cache"))
+    (tmp_path / "anim.json").write_text(json.dumps({**EDIT, "frames": 2}))
+    assert main(["edit", "--run", str(mesh_run), "--edit", str(tmp_path / "anim.json"), "--out", str(tmp_path / "e")]) == 0
+    cameras = scene / "data" / "transforms_test.json"
+    assert main(["render", "--run", str(mesh_run), "--deformation", str(tmp_path / "e" / "deformation.npz"),
+                 "--cameras", str(cameras), "--out", str(tmp_path / "r")]) == 0
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["frame_0000", "frame_0001"]
+    assert main(["render", "--run", str(mesh_run), "--deformation", str(tmp_path / "e" / "deformation.npz"),
+                 "--cameras", str(cameras), "--out", str(tmp_path / "one"), "--frame", "1"]) == 0
+    for name in ("r_0.png", "r_1.png", "r_2.png"):  # --frame 1 renders what the full animation's frame 1 holds
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "r" / "frame_0001" / name).read_bytes()
+    # frame 0 of "frames": 2 is the rest pose: it renders the unedited field
+    assert main(["render", "--run", str(mesh_run), "--cameras", str(cameras), "--out", str(tmp_path / "rest")]) == 0
+    assert main(["eval", "--pred", str(tmp_path / "r" / "frame_0000"), "--gt", str(tmp_path / "rest"),
+                 "--json-out", str(tmp_path / "m.json")]) == 0
+    assert json.loads((tmp_path / "m.json").read_text())["mean"]["psnr"] > 40.0
