@@ -28,7 +28,7 @@ import torch
 import yaml
 
 from .cameras import Cameras, look_at
-from .checkpoint import backend_name, load_field, save_field
+from .checkpoint import backend_name, load_field
 from .config import from_plain, to_plain
 from .deformation_field import DeformationField
 from .errors import NerfEditError

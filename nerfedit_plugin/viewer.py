@@ -28,8 +28,6 @@ FIXED, MOVED = (0.15, 0.35, 0.95), (0.95, 0.2, 0.15)
 
 
 def _triangles(mesh: SurfaceMesh, color: Sequence[float] | None = None):
-    import open3d as o3d
-
     out = mesh.to_open3d()
     out.compute_vertex_normals()
     if color is not None or mesh.vertex_colors is None:

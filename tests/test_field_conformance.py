@@ -2,7 +2,6 @@
 catches a broken field."""
 
 import pytest
-import torch
 
 from nerfedit_plugin.fields.mesh_field import MeshField, MeshFieldConfig
 from nerfedit_plugin.registry import FIELDS, discover

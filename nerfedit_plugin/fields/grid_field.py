@@ -1,4 +1,5 @@
-"""Building blocks of the dense-grid field backends: the coarse-to-fine resolution check and the colour decoder.
+"""Building blocks of the dense-grid field backends (nerf, neus): their shared config, the coarse-to-fine resolution
+check and the colour decoder.
 
 Colour: ``rgb = sigmoid(g₁..₃ + MLP([g₁.., SH(d)]))`` — a direct colour from the first three appearance features
 ``g`` of the grid plus, with ``decoder="mlp"``, a view-dependent residual of a one-hidden-layer MLP on all features
@@ -8,11 +9,58 @@ begins as a plain RGB grid.
 
 from __future__ import annotations
 
-from typing import Any
+import dataclasses
+from typing import Any, Literal
 
 import torch
 
+from ..field import FieldConfig
+from ..trainer import TrainerConfig
 from .encoding import spherical_harmonics
+
+
+@dataclasses.dataclass
+class GridFieldConfig(FieldConfig):
+    """Options shared by the dense-grid backends: grid, colour decoder, occupancy grid, learning rates, budget."""
+
+    resolution: int = 128
+    """Final grid cells per axis over the scene box (the grid has ``resolution + 1`` vertices per axis)."""
+    upsample_steps: tuple[int, ...] = (300,)
+    """Coarse to fine: the grid starts at ``resolution / 2^len(upsample_steps)`` cells per axis and doubles (exactly,
+    see :meth:`DenseGrid.upsample`) after each of these steps."""
+    features: int = 3
+    """Appearance feature channels per grid vertex, ≥ 3 (the first three are the direct colour logits; exactly 3
+    with ``decoder="rgb"``)."""
+    decoder: Literal["mlp", "rgb"] = "rgb"
+    """Colour decoder: direct colour plus a tiny MLP residual on features and view direction ("mlp"), or the direct
+    colour alone (no view dependence; the built-in scene is unlit, so the MLP only costs time there)."""
+    hidden: int = 32
+    """Hidden width of the colour MLP (one hidden layer)."""
+    sh_degree: int = 1
+    """Spherical-harmonics degree of the view-direction encoding fed to the MLP (0: view-independent)."""
+    occupancy_resolution: int = 64
+    """Occupancy cells per axis; must divide the starting grid resolution. 0 disables the occupancy grid."""
+    occupancy_dilation: int = 1
+    """Occupied cells are grown by this many cells (neighbours keep learning)."""
+    carve: bool = True
+    """Before training, carve the occupancy grid to the visual hull of the training images' alpha (when present)."""
+    occupancy_warmup: int = 128
+    """Steps before the first occupancy update."""
+    occupancy_every: int = 32
+    """Steps between occupancy updates."""
+    lr_grid: float = 0.1
+    """Adam learning rate of the grid."""
+    lr_mlp: float = 1e-2
+    """Adam learning rate of the colour MLP."""
+    train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
+    """Optimisation budget and schedule."""
+
+    @classmethod
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> "GridFieldConfig":
+        """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
+        preset = dict(resolution=32, features=4, decoder="mlp", hidden=16, occupancy_resolution=16,
+                      occupancy_every=16, train=TrainerConfig.tiny(seconds))
+        return cls(**{**preset, **overrides})
 
 
 def start_resolution(config: Any) -> int:

@@ -19,80 +19,43 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from typing import Any, Literal
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 
-from ..field import Field, FieldConfig
+from ..field import Field
 from ..mesh import SurfaceMesh
 from ..trainer import TrainerConfig, train
 from .encoding import DenseGrid
-from .grid_field import ColorDecoder, start_resolution
+from .grid_field import ColorDecoder, GridFieldConfig, start_resolution
 from .level_set import extract_level_set
 from .occupancy import OccupancyGrid
 
 
 @dataclasses.dataclass
-class NerfConfig(FieldConfig):
+class NerfConfig(GridFieldConfig):
     """Dense-grid NeRF. The defaults are the CPU preset for the 100×100 built-in scene (target: test PSNR ≥ 30 dB
     within 5 min on 2 cores; ``bench/bench_train.py --clock cpu`` measured 30.5 dB at 90 s and 34.9 dB after 300 s,
-    660 steps; the plain 96³ floor 25.4 dB); :meth:`tiny` is a seconds-scale preset for tests."""
+    660 steps; the plain 96³ floor 25.4 dB); :meth:`tiny` is a seconds-scale preset for tests. The grid starts at
+    64³ for 300 steps (one cell ≈ one pixel footprint at 100×100: every vertex gets gradients often, test PSNR
+    ≈ 32 dB at step 300), then 128³ (≈ 35 dB at step 450)."""
 
     _target: type = dataclasses.field(default_factory=lambda: NerfField)
-    resolution: int = 128
-    """Final grid cells per axis over the scene box (the grid has ``resolution + 1`` vertices per axis)."""
-    upsample_steps: tuple[int, ...] = (300,)
-    """Coarse to fine: the grid starts at ``resolution / 2^len(upsample_steps)`` cells per axis and doubles (exactly,
-    see :meth:`DenseGrid.upsample`) after each of these steps. Default: 64³ for 300 steps (one cell ≈ one pixel
-    footprint at 100×100: every vertex gets gradients often, test PSNR ≈ 32 dB at step 300), then 128³ (≈ 35 dB at
-    step 450) — measured with ``lr`` decaying over 900 steps."""
-    features: int = 3
-    """Appearance feature channels per grid vertex, ≥ 3 (the first three are the direct colour logits; exactly 3
-    with ``decoder="rgb"``)."""
-    decoder: Literal["mlp", "rgb"] = "rgb"
-    """Colour decoder: direct colour plus a tiny MLP residual on features and view direction ("mlp"), or the direct
-    colour alone (no view dependence). Default "rgb": the built-in scene is unlit (colour independent of the view),
-    so the MLP only costs time per sample. (An earlier "mlp stalls at 20 dB" reading came from a bench run on an
-    overloaded machine, where few steps fit in the wall-clock budget; it was not re-measured.)"""
-    hidden: int = 32
-    """Hidden width of the colour MLP (one hidden layer)."""
-    sh_degree: int = 1
-    """Spherical-harmonics degree of the view-direction encoding fed to the MLP (0: view-independent)."""
     density_init: float = 0.1
     """Initial density everywhere, per unit length (sets ``shift = softplus⁻¹(density_init · h)``)."""
-    occupancy_resolution: int = 64
-    """Occupancy cells per axis; must divide the starting grid resolution. 0 disables the occupancy grid."""
     occupancy_threshold: float = 1.0
     """Cells whose maximal density is at most this are skipped by the renderer."""
-    occupancy_dilation: int = 1
-    """Occupied cells are grown by this many cells (neighbours keep learning)."""
-    carve: bool = True
-    """Before training, carve the occupancy grid to the visual hull of the training images' alpha (when present)."""
     occupancy_shell: int = 0
     """Keep only occupied cells within this many cells of free space (0 keeps the whole interior): rays stop in
     the opaque shell, so skipping the interior saves most samples of solid objects."""
-    occupancy_warmup: int = 128
-    """Steps before the first occupancy update."""
-    occupancy_every: int = 32
-    """Steps between occupancy updates."""
-    lr_grid: float = 0.1
-    """Adam learning rate of the grid."""
-    lr_mlp: float = 1e-2
-    """Adam learning rate of the colour MLP."""
     mesh_level: float = 25.0
     """Default density level of :meth:`NerfField.extract_mesh`."""
-    train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
-    """Optimisation budget and schedule."""
 
     @classmethod
-    def tiny(cls, seconds: float = 5.0) -> "NerfConfig":
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> "NerfConfig":
         """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
-        return cls(
-            resolution=32, features=4, decoder="mlp", hidden=16, occupancy_resolution=16, occupancy_warmup=48,
-            occupancy_every=16,
-            train=TrainerConfig.tiny(seconds),
-        )
+        return super().tiny(seconds, **{"occupancy_warmup": 48, **overrides})
 
 
 class NerfField(Field):

@@ -24,42 +24,27 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..field import Field, FieldConfig
+from ..field import Field
 from ..mesh import SurfaceMesh
 from ..trainer import TrainerConfig, train
 from .encoding import DenseGrid
-from .grid_field import ColorDecoder, start_resolution
+from .grid_field import ColorDecoder, GridFieldConfig, start_resolution
 from .level_set import extract_level_set
 from .occupancy import OccupancyGrid
 
 
 @dataclasses.dataclass
-class NeusConfig(FieldConfig):
+class NeusConfig(GridFieldConfig):
     """Dense-grid NeuS. The defaults are the CPU preset for the 100×100 built-in scene (bench/bench_train.py
     --field neus); :meth:`tiny` is a seconds-scale preset for tests."""
 
     _target: type = dataclasses.field(default_factory=lambda: NeusField)
-    resolution: int = 128
-    """Final grid cells per axis over the scene box (the grid has ``resolution + 1`` vertices per axis)."""
-    upsample_steps: tuple[int, ...] = (300,)
-    """Coarse to fine: the grid starts at ``resolution / 2^len(upsample_steps)`` cells per axis and doubles (exactly)
-    after each of these steps."""
-    features: int = 3
-    """Appearance feature channels per grid vertex, ≥ 3 (the first three are the direct colour logits; exactly 3
-    with ``decoder="rgb"``)."""
-    decoder: Literal["mlp", "rgb"] = "rgb"
-    """Colour decoder: direct colour plus a tiny MLP residual on features and view direction ("mlp"), or the direct
-    colour alone (no view dependence)."""
-    hidden: int = 32
-    """Hidden width of the colour MLP (one hidden layer)."""
-    sh_degree: int = 1
-    """Spherical-harmonics degree of the view-direction encoding fed to the MLP (0: view-independent)."""
     init_radius: float = 0.5
     """Radius of the initial sphere, as a fraction of the smallest half side of the scene box."""
     init_hull: bool = True
@@ -73,23 +58,13 @@ class NeusConfig(FieldConfig):
     """Random points per step at which the eikonal loss is evaluated."""
     anneal_steps: int = 300
     """The renderer's cosine annealing ratio ramps linearly from 0 to 1 (unbiased) over these first steps."""
-    occupancy_resolution: int = 64
-    """Occupancy cells per axis; must divide the starting grid resolution. 0 disables the occupancy grid."""
     occupancy_band: float = 8.0
     """Cells are sampled when they hold a point with ``|f| ≤ occupancy_band / s`` (opacity changes by at most
     ~``exp(−occupancy_band)`` elsewhere)."""
-    occupancy_dilation: int = 1
-    """Occupied cells are grown by this many cells (the band can move while training)."""
-    carve: bool = True
-    """Before training, carve the occupancy grid to the visual hull of the training images' alpha (when present)."""
     occupancy_warmup: int = 64
     """Steps before the first occupancy update."""
-    occupancy_every: int = 32
-    """Steps between occupancy updates."""
     lr_grid: float = 0.2
     """Adam learning rate of the grid (SDF in cells, colour logits)."""
-    lr_mlp: float = 1e-2
-    """Adam learning rate of the colour MLP."""
     lr_sharpness: float = 1e-2
     """Adam learning rate of ``log_s``."""
     train: TrainerConfig = dataclasses.field(
@@ -97,13 +72,10 @@ class NeusConfig(FieldConfig):
     """Optimisation budget and schedule (the occupancy band makes 64 samples per ray enough)."""
 
     @classmethod
-    def tiny(cls, seconds: float = 5.0) -> "NeusConfig":
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> "NeusConfig":
         """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
-        return cls(
-            resolution=32, upsample_steps=(), features=4, decoder="mlp", hidden=16, occupancy_resolution=16,
-            occupancy_warmup=16, occupancy_every=16, anneal_steps=20,
-            train=TrainerConfig.tiny(seconds),
-        )
+        return super().tiny(seconds, **{"upsample_steps": (), "occupancy_warmup": 16, "anneal_steps": 20,
+                                        **overrides})
 
 
 class NeusField(Field):
