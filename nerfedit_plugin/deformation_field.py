@@ -13,12 +13,12 @@ Degenerate and inverted deformed tets never crash: point location skips tets of 
 located (barycentrics do not depend on orientation) and map through their affine map, whose Jacobian then has
 a negative determinant; where inverted tets overlap others, the smallest tet index wins.
 
-Cost. Only points in a marked cell of a per-frame ``NEAR_CELLS``³ grid over the boxes of T and T' (a cell is
-marked when the box inside which the point locator of T or T' may accept a point touches it, padded by 10⁻³ of a
-cell, far beyond the float error of the cell computation) go through point location; the others are outside both
-proxies (identity). Points located in T' skip the rest-proxy lookup. :meth:`DeformationField.bend` returns the
-deformed tet of each point instead of a ``(M,3,3)`` Jacobian: callers gather per-tet matrices
-(:meth:`DeformationField.jacobian`) only for the points they keep.
+Cost. A per-frame ``NEAR_CELLS``³ grid over T and T' marks, separately for each proxy, the cells touched by a
+sub-cell in which its point locator may accept a point (padded by 10⁻³ of a cell, far beyond the float error of the
+cell computation): only points in cells marked for T' are located in T', only those marked for T and not inside
+T' are tested for membership in T (no smallest index needed); the rest are outside (identity).
+:meth:`DeformationField.bend` returns the deformed tet of each point instead of a ``(M,3,3)`` Jacobian: callers
+gather per-tet matrices (:meth:`DeformationField.jacobian`) only for the points they keep.
 
 Saved as ``deformation.npz`` (``format_version``, ``rest_vertices``, ``tets``, ``deformed_vertices``); it loads
 without the deformer that made it. Locators and grids are built lazily (one per frame on T', one on T) and cached.
@@ -35,13 +35,13 @@ import torch
 
 from .atomic import atomic_path
 from .errors import NerfEditError
-from .locate import TetLocator, expand_ranges
+from .locate import TetLocator
 
 FORMAT_VERSION = 1
 KEYS = ("rest_vertices", "tets", "deformed_vertices")
 
 
-NEAR_CELLS = 64
+NEAR_CELLS = 128
 """Cells per axis of the per-frame grid that tells which points need point location."""
 
 
@@ -89,35 +89,37 @@ class _Frame(NamedTuple):
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
 
 
-def _near_grid(locators: tuple[TetLocator, ...]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(scale (3,), offset (3,), mask ((C+2)³,) bool)``, ``C = NEAR_CELLS``: cell coordinates ``u = x scale +
-    offset`` lie in ``[1, C+1)`` over the box of the locators' usable tets; the border layer (cells 0 and C+1)
-    takes every point outside it. A cell is marked when some usable tet's acceptance box (padded by 10⁻³ cell)
-    touches it: points in unmarked cells are outside every tet of every locator."""
-    lo, hi = zip(*(locator.boxes() for locator in locators))
-    lo, hi = torch.cat(lo).to(torch.float64), torch.cat(hi).to(torch.float64)
-    dtype, device, side = locators[0].dtype, lo.device, NEAR_CELLS + 2
+def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(scale (3,), offset (3,), mask ((C+2)³,) uint8)``, ``C = NEAR_CELLS``: cell coordinates ``u = x scale +
+    offset`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells of
+    their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Bit 1 of a cell: a box
+    of T' (``deformed``), padded by 10⁻³ cell, touches it; bit 2: a box of T. Points in a cell without bit 1 (2) are
+    outside every tet of T' (T). Cells are at least as wide as every box, so a box touches only its corners' cells."""
+    boxes = [locator.boxes() for locator in (deformed, rest)]
+    lo, hi = torch.cat([box[0] for box in boxes]), torch.cat([box[1] for box in boxes])
+    dtype, device, side = deformed.dtype, lo.device, NEAR_CELLS + 2
+    mask = torch.zeros(side**3, dtype=torch.uint8, device=device)
     if len(lo) == 0:
-        return torch.ones(3, dtype=dtype, device=device), torch.zeros(3, dtype=dtype, device=device), \
-            torch.zeros(side**3, dtype=torch.bool, device=device)
+        return torch.ones(3, dtype=dtype, device=device), torch.zeros(3, dtype=dtype, device=device), mask
     origin, extent = lo.amin(0), (hi.amax(0) - lo.amin(0)).clamp_min(1e-12)
-    scale = (NEAR_CELLS / extent).to(dtype)
+    scale = torch.minimum(NEAR_CELLS / extent, (1 - 4e-3) / (hi - lo).amax(0)).to(dtype)
     offset = (1.0 - origin * scale.to(torch.float64)).to(dtype)
     scale64, offset64 = scale.to(torch.float64), offset.to(torch.float64)  # the values points are mapped with
-    first = (lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
-    span = (hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1) - first + 1
-    count = span.prod(1)
-    owner, local = expand_ranges(count)
-    sy, sz = span[owner, 1], span[owner, 2]
-    ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
-    mask = torch.zeros(side**3, dtype=torch.bool, device=device)
-    mask[(ijk * torch.tensor([side * side, side, 1], device=device)).sum(1)] = True
+    strides = torch.tensor([side * side, side, 1], device=device)
+    for bit, (box_lo, box_hi) in zip((1, 2), boxes):
+        first = (box_lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
+        last = (box_hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1)  # first or first + 1
+        marked = torch.zeros(side**3, dtype=torch.bool, device=device)
+        for corner in range(8):
+            pick = torch.tensor([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1], dtype=torch.bool, device=device)
+            marked[(torch.where(pick, last, first) * strides).sum(1)] = True
+        mask |= marked.to(torch.uint8) * bit
     return scale, offset, mask
 
 
 def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
-    """``(M,)`` bool: the points lie in a marked cell of :func:`_near_grid` (NaN points: no). One coordinate
-    column at a time: ``floor(clamp(x scale + offset, 0, C+1))`` times the cell stride, summed (ids < 2²⁴: exact)."""
+    """``(M,)`` uint8: the bits of the points' cells in :func:`_near_grid` (NaN points: 0). One coordinate column
+    at a time: ``floor(clamp(x scale + offset, 0, C+1))`` times the cell stride, summed (ids < 2²⁴: exact)."""
     scale, offset, mask = grid
     side = NEAR_CELLS + 2
     cell = None
@@ -167,7 +169,7 @@ class DeformationField:
                 locator,
                 torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).t().to(self.dtype).contiguous(),
                 torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
-                _near_grid((locator, self._rest())),
+                _near_grid(locator, self._rest()),
             )
         return self._frames[frame]
 
@@ -181,7 +183,8 @@ class DeformationField:
         (see the module docstring). ``x`` is not modified."""
         mapping = self._frame(frame)
         x = torch.as_tensor(x).to(device=self.device, dtype=self.dtype).reshape(-1, 3)
-        near = torch.nonzero(_near(mapping.near, x)).squeeze(1)
+        code = _near(mapping.near, x)
+        near = torch.nonzero(code.bitwise_and(1)).squeeze(1)
         found, bary = mapping.locator.locate(x.index_select(0, near))
         inside = found >= 0
         idx = torch.nonzero(inside).squeeze(1)
@@ -190,8 +193,8 @@ class DeformationField:
         mapped = [r[i] + r[3 + 3 * i] * b[1] + r[4 + 3 * i] * b[2] + r[5 + 3 * i] * b[3]
                   for i in range(3)]  # r0 + R (b1, b2, b3) = Σ b_i r_i
         points = x.index_copy(0, near.index_select(0, idx), torch.stack(mapped, 1))
-        outside = near.index_select(0, torch.nonzero(~inside).squeeze(1))
-        vacated = outside[self._rest().locate(x.index_select(0, outside))[0] >= 0]
+        outside = torch.nonzero(code.bitwise_and_(2).index_fill_(0, near.index_select(0, idx), 0)).squeeze(1)
+        vacated = outside[self._rest().member(x.index_select(0, outside)) >= 0]
         empty = torch.zeros(len(x), dtype=torch.bool, device=self.device).index_fill_(0, vacated, True)
         tet = torch.full((len(x),), -1, dtype=torch.int64, device=self.device).index_copy_(0, near, found)
         return BentPoints(points, tet, empty)

@@ -26,6 +26,9 @@ lower-index tet sharing a cell with it can accept a point that deep in it. Every
 accepted by an unsafe tet, e.g. one overlapping an inverted neighbour, or a walk that leaves the mesh) is
 finished by brute force over its cell list: the smallest accepting index, i.e. the rule restricted to the only
 tets that can contain it.
+
+Membership (:meth:`TetLocator.member`, ``locate(p)[0] >= 0``) needs no smallest index: the walk's first
+accepting tet settles it, whatever its depth or safety; only walks that leave the mesh or run out of rounds scan.
 """
 
 from __future__ import annotations
@@ -224,15 +227,26 @@ class TetLocator:
         # Per tet: the depth that makes an acceptance final (inf for unsafe tets: never) and the walk's neighbours.
         safe = self._safe_tets(starts, lengths, tet)
         self._deep = torch.where(safe, DEEP, torch.inf).to(dtype)
+        self._accept = torch.where(table.usable, -self.eps, torch.inf).to(dtype)  # membership: any acceptance
 
     @property
     def n_tets(self) -> int:
         return len(self._table)
 
     def boxes(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(lo, hi)`` ``(U,3)`` in the working dtype, one per usable tet: outside its box a tet accepts no point."""
-        table = self._table
-        return table.box_lo[table.usable], table.box_hi[table.usable]
+        """``(lo, hi)`` ``(S,3)`` float64: the sub-cells whose occupancy bit is set, padded by 1 % of a sub-cell (far
+        beyond the rounding of the cell computation). Outside every box no tet accepts a point."""
+        cells = torch.nonzero(self._cell_mask).squeeze(1)
+        bits = self._cell_mask.index_select(0, cells)[:, None].bitwise_right_shift(
+            torch.arange(_SUB ** 3, device=self.device)).bitwise_and_(1)
+        owner, bit = torch.nonzero(bits).unbind(1)
+        cell = cells.index_select(0, owner)
+        padded = torch.tensor(self.grid_shape, device=self.device) + 2
+        ijk = torch.stack([cell // (padded[1] * padded[2]), (cell // padded[2]) % padded[1], cell % padded[2]], 1) - 1
+        fine = _SUB * ijk + torch.stack([bit // (_SUB * _SUB), (bit // _SUB) % _SUB, bit % _SUB], 1)
+        size = 1 / (_SUB * self._inv.to(torch.float64))
+        lo = self._lo.to(torch.float64) + (fine - 0.01) * size
+        return lo, lo + 1.02 * size
 
     @property
     def n_entries(self) -> int:
@@ -365,23 +379,36 @@ class TetLocator:
 
         ``bary`` is a transposed view of a ``(4, M)`` buffer (non-contiguous)."""
         points = _as_tensor(points, self.dtype, self.device).reshape(-1, 3)
-        tet = torch.full((len(points),), -1, dtype=torch.int64, device=self.device)
         bary = torch.zeros((4, len(points)), dtype=self.dtype, device=self.device)
+        return self._run(points, bary), bary.t()
+
+    def member(self, points: torch.Tensor) -> torch.Tensor:
+        """``(M,)`` int64: *some* tet accepting the point, -1 where none; ``>= 0`` exactly where ``locate``'s is.
+        Faster: the walk stops at the first accepting tet, no barycentrics."""
+        return self._run(_as_tensor(points, self.dtype, self.device).reshape(-1, 3), None)
+
+    def _run(self, points: torch.Tensor, bary: torch.Tensor | None) -> torch.Tensor:
+        """The tet per point of ``points (M,3)`` (any accepting one without ``bary (4,M)``, else filled too)."""
+        tet = torch.full((len(points),), -1, dtype=torch.int64, device=self.device)
         columns = torch.stack(points.unbind(1))  # (3, M): each coordinate contiguous, gathered by index_select(1, ·)
         for start in range(0, len(points), self.chunk):
             stop = min(start + self.chunk, len(points))
-            self._locate_chunk(columns[:, start:stop], tet[start:stop], bary[:, start:stop])
-        return tet, bary.t()
+            self._locate_chunk(columns[:, start:stop], tet[start:stop], None if bary is None else bary[:, start:stop])
+        return tet
 
     def _bary(self, code: torch.Tensor, columns: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """:func:`barycentric` of points ``columns (3,P)`` in tets ``code (P,)``, on contiguous coefficient rows."""
         return barycentric(self._table.columns.index_select(1, code).t(), columns.t())
 
-    def _locate_chunk(self, columns: torch.Tensor, tet: torch.Tensor, bary: torch.Tensor) -> None:
+    def _locate_chunk(self, columns: torch.Tensor, tet: torch.Tensor, bary: torch.Tensor | None) -> None:
+        """Write the answer of points ``columns (3,P)`` into ``tet`` and ``bary (4,P)``; without ``bary``, any
+        accepting tet (membership only): every tet's acceptance is final at ``min b >= -eps``."""
         def write(where: torch.Tensor, found: torch.Tensor, b) -> None:
             tet.scatter_(0, where, found.to(torch.int64))
-            for i in range(4):
+            for i in range(4 if bary is not None else 0):
                 bary[i].scatter_(0, where, b[i])
+
+        final_depth = self._deep if bary is not None else self._accept
 
         cell, sub = self._cell_ids(columns.t())
         # Cell and sub-cell occupancy: points that no tet can accept stop here.
@@ -396,9 +423,10 @@ class TetLocator:
         for step in range(self.rounds):
             b = self._bary(code, p)
             low = _min_bary(b)
-            done = low >= self._deep.index_select(0, code)
+            done = low >= final_depth.index_select(0, code)
             final = torch.nonzero(done).squeeze(1)
-            write(pos.index_select(0, final), code.index_select(0, final), [x.index_select(0, final) for x in b])
+            write(pos.index_select(0, final), code.index_select(0, final),
+                  [x.index_select(0, final) for x in b] if bary is not None else None)
             if step + 1 == self.rounds:
                 scan.append(pos.index_select(0, torch.nonzero(~done).squeeze(1)))
                 break
@@ -417,11 +445,11 @@ class TetLocator:
                 break
         rest = torch.cat(scan)
         if len(rest):
-            write(rest, *self._scan(cell.index_select(0, rest), columns.index_select(1, rest)))
+            write(rest, *self._scan(cell.index_select(0, rest), columns.index_select(1, rest), bary is not None))
 
-    def _scan(self, cell: torch.Tensor, columns: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    def _scan(self, cell: torch.Tensor, columns: torch.Tensor, with_bary: bool = True):
         """Brute force over each point's cell list (points ``columns (3,P)``): the smallest accepting tet index (-1
-        if none) and its b (0)."""
+        if none) and its b (0; None without ``with_bary``)."""
         k = len(self._table)
         owner, local = expand_ranges(self._cell_count.index_select(0, cell))
         entry = self._cell_start.index_select(0, cell).index_select(0, owner) + local
@@ -431,6 +459,8 @@ class TetLocator:
         found = torch.full((len(cell),), k, dtype=torch.int64, device=self.device)
         found.scatter_reduce_(0, owner, key, "amin")
         inside = found < k
+        if not with_bary:
+            return torch.where(inside, found, -1), None
         b = self._bary(torch.where(inside, found, 0), columns)
         return torch.where(inside, found, -1), [torch.where(inside, x, 0.0) for x in b]
 

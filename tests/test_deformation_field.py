@@ -130,21 +130,39 @@ def test_degenerate_and_inverted_deformed_tets_do_not_crash(proxy):
     assert (torch.linalg.det(out.jacobian[out.inside].double()) < 0).double().mean() > 0.95
 
 
-def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted):
-    """``bend`` locates only points near the proxies (a coarse grid): its regions, tets and points must equal plain
-    point location in T' and T for points on and just around both boundaries and far away."""
-    v, tets = proxy.vertices, proxy.tets
-    deformed, field = lifted  # T' overlaps T and leaves vacated space
-    rng = np.random.default_rng(6)
-    boundary = np.concatenate([v, deformed])
+def folded(vertices: np.ndarray) -> np.ndarray:
+    """The top tenth mirrored down through a plane: inverted tets overlapping upright ones."""
+    mid = vertices[:, 2].max() - 0.1 * np.ptp(vertices[:, 2])
+    return vertices * [1.0, 1.0, 0.0] + np.c_[0 * vertices[:, :2], mid - np.abs(vertices[:, 2] - mid)]
+
+
+def assert_bend_is_point_location(field: DeformationField, rest, deformed, tets, seed: int):
+    """``bend`` locates only points in cells its grid marks for T' (then T): its regions and tets must equal plain
+    point location in T' and T for points on vertices, face centres and just around both, and sampled around."""
+    rng = np.random.default_rng(seed)
+    faces = np.concatenate([vertices[tets[:, [1, 2, 3]]].mean(1) for vertices in (rest, deformed)])
+    boundary = np.concatenate([rest, deformed, faces])
     points = np.concatenate([boundary] + [boundary + rng.normal(0, s, boundary.shape) for s in (1e-6, 1e-4, 1e-2)]
-                            + [sample(np.concatenate([v, deformed]), 20000, seed=7, grow=1.5).numpy()])
+                            + [sample(np.concatenate([rest, deformed]), 20000, seed=seed, grow=1.5).numpy()])
     x = torch.as_tensor(points, dtype=torch.float32)
     bent = field.bend(x)
     tet_deformed, bary = TetLocator(deformed, tets).locate(x)
-    in_rest = TetLocator(v, tets).locate(x)[0] >= 0
+    in_rest = TetLocator(rest, tets).locate(x)[0] >= 0
     assert torch.equal(bent.tet, tet_deformed)
     assert torch.equal(bent.empty, (tet_deformed < 0) & in_rest)
+    return x, bent, tet_deformed, bary
+
+
+def test_bend_of_inverted_overlapping_tets_is_point_location(proxy):
+    v, tets = proxy.vertices, proxy.tets
+    field = DeformationField(v, tets, folded(v)[None])
+    assert_bend_is_point_location(field, v, folded(v), tets, seed=8)
+
+
+def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted):
+    v, tets = proxy.vertices, proxy.tets
+    deformed, field = lifted  # T' overlaps T and leaves vacated space
+    x, bent, tet_deformed, bary = assert_bend_is_point_location(field, v, deformed, tets, seed=6)
     inside = tet_deformed >= 0
     assert 0.2 < inside.double().mean() < 0.8 and 0.05 < bent.empty.double().mean()
     assert torch.equal(bent.points[~inside], x[~inside])

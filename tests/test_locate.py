@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.locate import EPS, TetLocator, locate_brute_force
+from nerfedit_plugin.locate import EPS, TetLocator, barycentric, locate_brute_force
 
 
 def cube_grid_tets(n: int, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -68,6 +68,12 @@ def assert_same_as_brute_force(vertices, tets, points, dtype, **kwargs):
     ref_tet, ref_bary = locate_brute_force(vertices, tets, torch.as_tensor(points), dtype=dtype)
     assert torch.equal(tet, ref_tet), f"{int((tet != ref_tet).sum())} of {len(tet)} points differ"
     assert torch.equal(bary.contiguous(), ref_bary)  # bit for bit, and 0 where -1
+    # membership: some tet that accepts the point, exactly where the rule finds one
+    member = locator.member(torch.as_tensor(points))
+    assert torch.equal(member >= 0, ref_tet >= 0)
+    table, hit = locator._table, torch.nonzero(member >= 0).squeeze(1)
+    b = barycentric(table.rows[member[hit]], torch.as_tensor(points, dtype=dtype)[hit])
+    assert (torch.stack(b).amin(0) >= -EPS[dtype]).all() and table.usable[member[hit]].all()
     return tet, bary
 
 
