@@ -10,7 +10,7 @@ begins as a plain RGB grid.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Literal
+from typing import Any, Callable, Literal
 
 import torch
 
@@ -76,6 +76,24 @@ def start_resolution(config: Any) -> int:
         raise ValueError(f"{name}: resolution {config.resolution} must be a multiple of 2^{levels} "
                          f"(len(upsample_steps)) times occupancy_resolution {occupancy}")
     return start
+
+
+def grid_schedule(field: Any) -> Callable[[int], bool]:
+    """The trainer callback of a grid field (``field.grid``, ``field.update_occupancy()``, ``field.config`` a
+    :class:`GridFieldConfig`): refine the grid after each of ``upsample_steps`` (returns True: the optimiser is
+    rebuilt) and refresh the occupancy grid every ``occupancy_every`` steps after ``occupancy_warmup``."""
+    config = field.config
+
+    def callback(step: int) -> bool:
+        refine = step + 1 in config.upsample_steps
+        if refine:
+            field.grid.upsample()
+        since = step + 1 - config.occupancy_warmup
+        if since >= 0 and since % config.occupancy_every == 0:
+            field.update_occupancy()
+        return refine
+
+    return callback
 
 
 class ColorDecoder(torch.nn.Module):

@@ -28,7 +28,7 @@ from ..field import Field
 from ..mesh import SurfaceMesh
 from ..trainer import TrainerConfig, train
 from .encoding import DenseGrid
-from .grid_field import ColorDecoder, GridFieldConfig, start_resolution
+from .grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
 from .level_set import extract_level_set
 from .occupancy import OccupancyGrid
 
@@ -112,15 +112,6 @@ class NerfField(Field):
         after the warm-up, and the grid is refined at ``upsample_steps``."""
         config = self.config
 
-        def callback(step: int) -> bool:
-            refine = step + 1 in config.upsample_steps
-            if refine:
-                self.grid.upsample()
-            since = step + 1 - config.occupancy_warmup
-            if since >= 0 and since % config.occupancy_every == 0:
-                self.update_occupancy()
-            return refine
-
         def groups() -> list[dict]:
             found = [{"params": list(self.grid.parameters()), "lr": config.lr_grid}]
             if self.color.mlp is not None:
@@ -129,7 +120,7 @@ class NerfField(Field):
 
         if self.occupancy is not None and config.carve and dataset.alpha is not None:
             self.occupancy.carve(dataset.cameras, dataset.alpha.to(self.scene_bbox.device) > 0)
-        log = train(self, dataset, trainer or config.train, param_groups=groups, callback=callback,
+        log = train(self, dataset, trainer or config.train, param_groups=groups, callback=grid_schedule(self),
                     eval_dataset=eval_dataset)
         self.update_occupancy()
         return log

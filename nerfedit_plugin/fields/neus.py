@@ -34,7 +34,7 @@ from ..field import Field
 from ..mesh import SurfaceMesh
 from ..trainer import TrainerConfig, train
 from .encoding import DenseGrid
-from .grid_field import ColorDecoder, GridFieldConfig, start_resolution
+from .grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
 from .level_set import extract_level_set
 from .occupancy import OccupancyGrid
 
@@ -186,15 +186,6 @@ class NeusField(Field):
         config = self.config
         generator = torch.Generator().manual_seed((trainer or config.train).seed)
 
-        def callback(step: int) -> bool:
-            refine = step + 1 in config.upsample_steps
-            if refine:
-                self.grid.upsample()
-            since = step + 1 - config.occupancy_warmup
-            if since >= 0 and since % config.occupancy_every == 0:
-                self.update_occupancy()
-            return refine
-
         def regularizer(step: int) -> torch.Tensor:
             return config.eikonal_weight * self.eikonal_loss(self._eikonal_points(config.eikonal_points, generator))
 
@@ -210,7 +201,7 @@ class NeusField(Field):
             if self.occupancy is not None and config.carve:
                 self.occupancy.carve(dataset.cameras, coverage)
         log = train(self, dataset, trainer or config.train, param_groups=groups, regularizer=regularizer,
-                    callback=callback, cos_anneal=lambda step: min(1.0, step / max(config.anneal_steps, 1)),
+                    callback=grid_schedule(self), cos_anneal=lambda step: min(1.0, step / max(config.anneal_steps, 1)),
                     eval_dataset=eval_dataset)
         self.update_occupancy()
         return log
