@@ -65,7 +65,7 @@ class Run:
     def camera_distance(self) -> float | None:
         """Mean distance of the training cameras to the centre of the dataset's scene box (``None`` for runs built
         from a mesh): it sets the proxy's cage offset (5 %, as in the paper)."""
-        if self.data.is_file() and self.data.suffix != ".json":
+        if _is_mesh_file(self.data):
             return None
         transforms = read_transforms(self.data, "train")
         centers = transforms.cameras.c2w[:, :3, 3].double()
@@ -87,6 +87,11 @@ def open_run(path: str | os.PathLike) -> Run:
     if not isinstance(config, dict) or not isinstance(config.get("field"), str) or "data" not in config:
         raise NerfEditError(f"{file}: expected the keys 'field' and 'data' of a run written by `nerfedit train`")
     return Run(path, config["field"], (path / config["data"]).resolve(), config)
+
+
+def _is_mesh_file(data: Path) -> bool:
+    """A file that is not a transforms JSON: the mesh a ``data == "mesh"`` field is built from."""
+    return data.is_file() and data.suffix != ".json"
 
 
 def _eval_split(data: Path) -> Dataset | None:
@@ -124,7 +129,7 @@ def train_run(
             raise NerfEditError(f"{data}: the {backend!r} field is built from a mesh file (PLY/OBJ/OFF/GLB)")
         field, log = target.from_mesh(SurfaceMesh.load(data), config).to(device), {}
     else:
-        if data.is_file() and data.suffix != ".json":
+        if _is_mesh_file(data):
             raise NerfEditError(f"{data}: the {backend!r} field trains on a dataset folder or transforms file")
         train = load_dataset(data, "train").to(device)
         evaluation = _eval_split(data)

@@ -233,6 +233,14 @@ def check_config(config: Any) -> None:
     assert isinstance(keys, frozenset) and all(isinstance(k, str) for k in keys), (
         f"{target.__name__}.spec_keys must be a frozenset of str, got {keys!r}"
     )
+    check_documented_round_trip(config)
+
+
+def check_documented_round_trip(config: Any) -> None:
+    """What every plugin config (deformer or field) owes the CLI and ``config.yml``: a docstring under each public
+    field, and a lossless, YAML-safe round trip through :func:`to_plain` / :func:`from_plain` whose ``_target``
+    imports back."""
+    name = _name(config)
     public = [f.name for f in dataclasses.fields(config) if not f.name.startswith("_")]
     missing = sorted(set(public) - _field_docstrings(type(config)))
     assert not missing, f"{name}: fields without a docstring (a string literal right below the field): {missing}"
@@ -244,7 +252,8 @@ def check_config(config: Any) -> None:
     assert reloaded == plain, f"{name}: to_plain(config) does not survive a YAML round trip: {plain!r} -> {reloaded!r}"
     rebuilt = to_plain(from_plain(type(config), plain))
     assert rebuilt == plain, f"{name}: config does not round-trip through to_plain: {plain!r} -> {rebuilt!r}"
-    assert _resolve_dotted(plain["_target"]) is target, f"{name}: _target {plain['_target']!r} does not import back"
+    assert _resolve_dotted(plain["_target"]) is config._target, (
+        f"{name}: _target {plain['_target']!r} does not import back")
 
 
 def check_output(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None) -> None:

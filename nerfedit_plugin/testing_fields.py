@@ -25,17 +25,15 @@ from typing import Any, Iterable
 
 import numpy as np
 import torch
-import yaml
 
 from .cameras import Cameras, look_at
 from .checkpoint import backend_name, load_field
-from .config import from_plain, to_plain
 from .deformation_field import DeformationField
 from .errors import NerfEditError
 from .field import Field, FieldConfig
 from .mesh import SurfaceMesh
 from .renderer import RenderConfig, render_image
-from .testing import _field_docstrings, default_mesh
+from .testing import check_documented_round_trip, default_mesh
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 """Scene box of fields built from a config by the kit."""
@@ -76,12 +74,7 @@ def check_config(config: Any) -> None:
     assert target.data in ("images", "mesh"), f"{target.__name__}.data must be 'images' or 'mesh', not {target.data!r}"
     if target.data == "mesh":
         assert callable(getattr(target, "from_mesh", None)), f"{target.__name__}: data='mesh' needs from_mesh()"
-    public = [f.name for f in dataclasses.fields(config) if not f.name.startswith("_")]
-    missing = sorted(set(public) - _field_docstrings(type(config)))
-    assert not missing, f"{name}: fields without a docstring: {missing}"
-    plain = to_plain(config)
-    assert yaml.safe_load(yaml.safe_dump(plain)) == plain, f"{name}: to_plain(config) is not YAML-safe"
-    assert to_plain(from_plain(type(config), plain)) == plain, f"{name}: config does not round-trip through YAML"
+    check_documented_round_trip(config)
 
 
 def _same_queries(a: Field, b: Field, what: str) -> None:

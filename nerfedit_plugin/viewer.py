@@ -47,14 +47,18 @@ def _edges(vertices: np.ndarray, tets_or_faces: np.ndarray, color: Sequence[floa
     return lines
 
 
-def _handles(spec_path: Path, deformer: str, rest: SurfaceMesh):
+def _handles(spec_path: Path, deformer: str, points_of_handles: np.ndarray):
+    """Point cloud of the spec's handle selections on ``points_of_handles`` (the rest mesh's vertices, or the rest
+    cage's for a cage edit), fixed blue, moved red; None when the spec has no handles."""
     import open3d as o3d
 
     spec = load_edit_spec(spec_path, discover().config_class(DEFORMERS, deformer)()._target.spec_keys)
+    if not spec.handles:
+        return None
     points, colors = [], []
     for handle in spec.handles:
-        idx = handle.selection.indices(rest.vertices, spec.source)
-        points.append(rest.vertices[idx])
+        idx = handle.selection.indices(points_of_handles, spec.source)
+        points.append(points_of_handles[idx])
         colors.append(np.tile(FIXED if handle.transform is None else MOVED, (len(idx), 1)))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(points)))
     cloud.colors = o3d.utility.Vector3dVector(np.concatenate(colors))
@@ -90,8 +94,8 @@ def edit_geometries(mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None
             out.append(_edges(field.rest_vertices, field.tets, (0.55, 0.55, 0.6)))
         if "deformed-proxy" in layers:
             out.append(_edges(field.deformed_vertices[frame] + shift, field.tets, (0.9, 0.55, 0.2)))
-    if "cage" in layers and (edit_dir / "cage_rest.ply").is_file():
-        cage = SurfaceMesh.load(edit_dir / "cage_rest.ply")
+    cage = SurfaceMesh.load(edit_dir / "cage_rest.ply") if (edit_dir / "cage_rest.ply").is_file() else None
+    if "cage" in layers and cage is not None:
         out.append(_edges(cage.vertices, cage.faces, (0.2, 0.6, 0.3)))
         posed = sorted(edit_dir.glob("cage_deformed*.ply"))
         if posed:
@@ -99,9 +103,9 @@ def edit_geometries(mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None
             out.append(_edges(moved.vertices + shift, moved.faces, (0.2, 0.6, 0.3)))
     spec = Path(str(record.get("edit", ""))).name
     if "handles" in layers and spec and (edit_dir / spec).is_file():
-        deformer = str(record.get("deformer", "arap"))
-        if "handles" in (edit_dir / spec).read_text():
-            out.append(_handles(edit_dir / spec, deformer, mesh))
+        handles = _handles(edit_dir / spec, str(record.get("deformer", "arap")),
+                           mesh.vertices if cage is None else cage.vertices)  # cage handles grab cage vertices
+        out += [handles] if handles is not None else []
     return out
 
 

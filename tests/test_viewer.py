@@ -79,3 +79,17 @@ def test_gif_holds_every_frame(tmp_path):
         assert gif.n_frames == 3
         gif.seek(1)
         assert abs(np.asarray(gif.convert("RGB")).astype(int).mean() - 128) <= 1
+
+
+def test_cage_handles_are_drawn_on_the_cage(capsule, proxy_cache, tmp_path):
+    """A cage spec's handles select cage vertices, so the viewer resolves them on the rest cage, not on the mesh."""
+    capsule.save(tmp_path / "capsule.ply")
+    (tmp_path / "cage.json").write_text(json.dumps({"cage": "auto", **EDIT}))
+    assert main(["edit", "--mesh", str(tmp_path / "capsule.ply"), "--deformer", "cage", "--edit",
+                 str(tmp_path / "cage.json"), "--out", str(tmp_path / "edit"), "--cache-dir", str(proxy_cache)]) == 0
+    from nerfedit_plugin.mesh import SurfaceMesh
+
+    cage = SurfaceMesh.load(tmp_path / "edit" / "cage_rest.ply")
+    (handles,) = edit_geometries(capsule, tmp_path / "edit", layers=["handles"])
+    selected = (np.abs(cage.vertices[:, 2]) > 0.6) & (np.abs(cage.vertices[:, 2]) <= 1.1)
+    assert len(handles.points) == selected.sum() < len(capsule.vertices)
