@@ -1,10 +1,16 @@
-"""TetLocator: the grid answer equals brute force exactly (tet ids and barycentric bits), no cracks, edge cases."""
+"""TetLocator: the grid answer equals brute force exactly (tet ids and barycentric bits), no cracks, edge cases; for
+both kernels (the compiled CPU walk and the vectorised torch walk)."""
 
 import numpy as np
 import pytest
 import torch
 
 from nerfedit_plugin.locate import EPS, TetLocator, barycentric, locate_brute_force
+
+
+@pytest.fixture(params=["numba", "torch"])
+def kernel(request):
+    return request.param
 
 
 def cube_grid_tets(n: int, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -62,8 +68,8 @@ def probe_points(vertices: np.ndarray, tets: np.ndarray, n_random: int, seed: in
     ])
 
 
-def assert_same_as_brute_force(vertices, tets, points, dtype, **kwargs):
-    locator = TetLocator(vertices, tets, dtype=dtype, **kwargs)
+def assert_same_as_brute_force(vertices, tets, points, dtype, kernel, **kwargs):
+    locator = TetLocator(vertices, tets, dtype=dtype, kernel=kernel, **kwargs)
     tet, bary = locator.locate(torch.as_tensor(points))
     ref_tet, ref_bary = locate_brute_force(vertices, tets, torch.as_tensor(points), dtype=dtype)
     assert torch.equal(tet, ref_tet), f"{int((tet != ref_tet).sum())} of {len(tet)} points differ"
@@ -78,10 +84,10 @@ def assert_same_as_brute_force(vertices, tets, points, dtype, **kwargs):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_grid_equals_brute_force_on_pytetwild_mesh(sphere_tets, dtype):
+def test_grid_equals_brute_force_on_pytetwild_mesh(sphere_tets, dtype, kernel):
     vertices, tets = sphere_tets
     points = probe_points(vertices, tets, 3000)
-    tet, bary = assert_same_as_brute_force(vertices, tets, points, dtype, chunk=2500)
+    tet, bary = assert_same_as_brute_force(vertices, tets, points, dtype, kernel, chunk=2500)
     inside = tet >= 0
     assert 0.2 < inside.double().mean() < 0.9
     # barycentrics reproduce the point and satisfy the containment rule
@@ -98,10 +104,10 @@ def test_grid_equals_brute_force_on_pytetwild_mesh(sphere_tets, dtype):
     (torch.float32, {"cells_per_tet": 0.3, "rounds": 1}),  # coarse cells, long lists: mostly the full scan
     (torch.float32, {"cells_per_tet": 16.0, "rounds": 6}),
 ])
-def test_grid_equals_brute_force_on_cube_grid(dtype, settings):
+def test_grid_equals_brute_force_on_cube_grid(dtype, settings, kernel):
     vertices, tets = cube_grid_tets(5)
     points = probe_points(vertices, tets, 3000, seed=1)
-    tet, _ = assert_same_as_brute_force(vertices, tets, points, dtype, **settings)
+    tet, _ = assert_same_as_brute_force(vertices, tets, points, dtype, kernel, **settings)
     # shared vertices, faces and edges are exactly representable here: they are all found (no cracks) and
     # the smallest index among the tets sharing them wins
     n_random = 3000
@@ -110,19 +116,19 @@ def test_grid_equals_brute_force_on_cube_grid(dtype, settings):
     assert (tet[-50:] == -1).all()
 
 
-def test_points_deep_inside_interior_tets_are_never_lost(sphere_tets):
+def test_points_deep_inside_interior_tets_are_never_lost(sphere_tets, kernel):
     vertices, tets = sphere_tets
     rng = np.random.default_rng(2)
     weights = rng.dirichlet(np.ones(4), size=len(tets))
     points = (weights[:, :, None] * vertices[tets]).sum(1)
-    tet, _ = TetLocator(vertices, tets).locate(torch.as_tensor(points))
+    tet, _ = TetLocator(vertices, tets, kernel=kernel).locate(torch.as_tensor(points))
     assert (tet >= 0).all()
     # a point strictly inside tet t (valid mesh) is located in t
     strict = weights.min(1) > 1e-3
     assert torch.equal(tet[torch.as_tensor(strict)], torch.arange(len(tets))[torch.as_tensor(strict)])
 
 
-def test_overlapping_and_degenerate_tets_follow_the_rule():
+def test_overlapping_and_degenerate_tets_follow_the_rule(kernel):
     """Two overlapping copies of a grid (so no tet is 'safe') plus zero-volume tets: still brute-force exact."""
     vertices, tets = cube_grid_tets(3)
     shifted = vertices + [0.13, 0.05, -0.07]
@@ -131,15 +137,15 @@ def test_overlapping_and_degenerate_tets_follow_the_rule():
     all_vertices = np.concatenate([vertices, shifted, line])
     all_tets = np.concatenate([tets + len(vertices), tets, flat])  # the shifted copy has the lower indices
     points = probe_points(all_vertices, all_tets[:-1], 3000, seed=3)
-    tet, _ = assert_same_as_brute_force(all_vertices, all_tets, points, torch.float32)
+    tet, _ = assert_same_as_brute_force(all_vertices, all_tets, points, torch.float32, kernel)
     assert (tet != len(all_tets) - 1).all()
     both = torch.as_tensor(((points > [0.13, 0.05, 0.0]) & (points < [1.0, 1.0, 0.93])).all(1))  # the overlap
     assert (tet[both] < len(tets)).all()  # where the copies overlap, the lower-index copy wins
 
 
-def test_outside_nan_and_empty_inputs():
+def test_outside_nan_and_empty_inputs(kernel):
     vertices, tets = cube_grid_tets(2)
-    locator = TetLocator(vertices, tets)
+    locator = TetLocator(vertices, tets, kernel=kernel)
     points = torch.tensor([[-5.0, 0.5, 0.5], [0.5, 0.5, 7.0], [float("nan"), 0.5, 0.5], [float("inf"), 0, 0],
                            [0.5, 0.5, 0.5]])
     tet, bary = locator.locate(points)
@@ -147,11 +153,12 @@ def test_outside_nan_and_empty_inputs():
     assert (bary[:4] == 0).all()
     tet, bary = locator.locate(torch.zeros((0, 3)))
     assert tet.shape == (0,) and bary.shape == (0, 4)
+    assert locator.member(torch.zeros((0, 3))).shape == (0,)
 
 
-def test_all_degenerate_mesh_locates_nothing():
+def test_all_degenerate_mesh_locates_nothing(kernel):
     vertices = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0.0]])
-    tet, _ = TetLocator(vertices, np.array([[0, 1, 2, 3]])).locate(torch.rand(10, 3))
+    tet, _ = TetLocator(vertices, np.array([[0, 1, 2, 3]]), kernel=kernel).locate(torch.rand(10, 3))
     assert (tet == -1).all()
 
 
@@ -159,7 +166,26 @@ def test_all_degenerate_mesh_locates_nothing():
 def test_cuda_matches_cpu(sphere_tets):
     vertices, tets = sphere_tets
     points = torch.as_tensor(probe_points(vertices, tets, 5000))
-    cpu = TetLocator(vertices, tets).locate(points)
+    cpu = TetLocator(vertices, tets, kernel="torch").locate(points)
     gpu = TetLocator(torch.as_tensor(vertices).cuda(), tets).locate(points.cuda())
     assert torch.equal(gpu[0].cpu(), cpu[0])
     assert torch.allclose(gpu[1].cpu(), cpu[1], atol=1e-6)
+
+
+def test_kernels_agree_on_ray_like_points(sphere_tets):
+    """Coherent samples along rays (what rendering sends): both kernels give identical tets and barycentric bits."""
+    vertices, tets = sphere_tets
+    rng = np.random.default_rng(5)
+    origins = rng.normal(size=(200, 3)) * 3
+    directions = -origins / np.linalg.norm(origins, axis=1, keepdims=True) + rng.normal(size=(200, 3)) * 0.2
+    points = torch.as_tensor(origins[:, None] + np.linspace(0, 6, 300)[:, None] * directions[:, None]).reshape(-1, 3)
+    answers = [TetLocator(vertices, tets, kernel=k).locate(points) for k in ("numba", "torch")]
+    assert torch.equal(answers[0][0], answers[1][0]) and torch.equal(answers[0][1], answers[1][1])
+    assert 0.1 < (answers[0][0] >= 0).double().mean() < 0.9
+
+
+def test_kernel_choice_is_checked():
+    vertices, tets = cube_grid_tets(1)
+    assert TetLocator(vertices, tets).kernel == "numba"  # the CPU default
+    with pytest.raises(ValueError, match="kernel"):
+        TetLocator(vertices, tets, kernel="cython")
