@@ -84,7 +84,7 @@ def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray,
 
 class _Frame(NamedTuple):
     locator: TetLocator
-    rest_columns: torch.Tensor  # (12,K): r0, then rest edges r1-r0, r2-r0, r3-r0 (columns of R, row-major)
+    rest_rows: torch.Tensor  # (K,12): r0, then R = [r1-r0, r2-r0, r3-r0] (rest edges as columns) row-major
     jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
 
@@ -93,8 +93,9 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     """``(scale (3,), offset (3,), mask ((C+2)³,) uint8)``, ``C = NEAR_CELLS``: cell coordinates ``u = x scale +
     offset`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells of
     their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Bit 1 of a cell: a box
-    of T' (``deformed``), padded by 10⁻³ cell, touches it; bit 2: a box of T. Points in a cell without bit 1 (2) are
-    outside every tet of T' (T). Cells are at least as wide as every box, so a box touches only its corners' cells."""
+    of T' (``deformed``), padded by 10⁻³ cell, touches it; bit 2: a box of T; bit 4: every point of the cell is
+    inside T (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T).
+    Cells are at least as wide as every box, so a box touches only its corners' cells."""
     boxes = [locator.boxes() for locator in (deformed, rest)]
     lo, hi = torch.cat([box[0] for box in boxes]), torch.cat([box[1] for box in boxes])
     dtype, device, side = deformed.dtype, lo.device, NEAR_CELLS + 2
@@ -114,6 +115,7 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
             pick = torch.tensor([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1], dtype=torch.bool, device=device)
             marked[(torch.where(pick, last, first) * strides).sum(1)] = True
         mask |= marked.to(torch.uint8) * bit
+    mask |= rest.covered_cells(scale64, offset64, side).to(torch.uint8) * 4
     return scale, offset, mask
 
 
@@ -132,10 +134,12 @@ def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor
 class DeformationField:
     """Tet proxy in canonical space T plus its deformed copies T' per frame; maps deformed-space points to canonical."""
 
-    def __init__(self, rest_vertices, tets, deformed_vertices, *, device="cpu", dtype=torch.float32):
+    def __init__(self, rest_vertices, tets, deformed_vertices, *, device="cpu", dtype=torch.float32,
+                 kernel: str = "auto"):
         self.rest_vertices, self.tets, self.deformed_vertices = _validate(
             rest_vertices, tets, deformed_vertices, "DeformationField")
         self.device, self.dtype = torch.device(device), dtype
+        self.kernel = kernel  # TetLocator's: "auto" (compiled on the CPU), "numba" or "torch"
         self._frames: dict[int, _Frame] = {}
         self._rest_locator: TetLocator | None = None
 
@@ -164,10 +168,10 @@ class DeformationField:
             ok = torch.linalg.det(edges) != 0
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
-            locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device)
+            locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel)
             self._frames[frame] = _Frame(
                 locator,
-                torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).t().to(self.dtype).contiguous(),
+                torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).to(self.dtype),
                 torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
                 _near_grid(locator, self._rest()),
             )
@@ -175,29 +179,63 @@ class DeformationField:
 
     def _rest(self) -> TetLocator:
         if self._rest_locator is None:
-            self._rest_locator = TetLocator(self.rest_vertices, self.tets, dtype=self.dtype, device=self.device)
+            self._rest_locator = TetLocator(self.rest_vertices, self.tets, dtype=self.dtype, device=self.device,
+                                            kernel=self.kernel)
         return self._rest_locator
 
-    def bend(self, x: torch.Tensor, frame: int = 0) -> BentPoints:
+    def bend(self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None) -> BentPoints:
         """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space; report each point's deformed tet
-        (see the module docstring). ``x`` is not modified."""
+        (see the module docstring). ``out``: an ``(M,3)`` tensor that receives ``x_c`` (and is returned as
+        ``points``); it may be ``x`` itself, to bend in place. Otherwise ``x`` is not modified."""
         mapping = self._frame(frame)
-        x = torch.as_tensor(x).to(device=self.device, dtype=self.dtype).reshape(-1, 3)
+        x = torch.as_tensor(x)
+        if out is not None and out.shape != (len(x), 3):
+            raise ValueError(f"bend: out must have shape ({len(x)}, 3), got {tuple(out.shape)}")
+        source = x.to(device=self.device, dtype=self.dtype).reshape(-1, 3)
+        direct = out is not None and out.dtype == self.dtype and out.device == self.device and out.is_contiguous()
+        target = out if direct else torch.empty_like(source)
+        if mapping.locator.kernel == "numba":
+            tet, empty = self._bend_compiled(mapping, source, target)
+        else:
+            tet, empty = self._bend_torch(mapping, source, target)
+        if out is not None and not direct:
+            target = out.copy_(target)
+        return BentPoints(target, tet, empty)
+
+    def _bend_compiled(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`bend` in one compiled pass (:mod:`nerfedit_plugin.bend_kernel`): writes ``out``, returns
+        ``(tet, empty)``."""
+        from .bend_kernel import bend_points
+        from .locate_kernel import launch
+
+        tet, empty = torch.empty(len(x), dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
+        scale, offset, mask = (t.numpy() for t in mapping.near)
+        rest = self._rest()
+        launch(bend_points, x.contiguous().numpy(), scale, offset, mask, NEAR_CELLS + 2, mapping.locator.arrays,
+               rest.arrays, mapping.rest_rows.numpy(), rest.rounds, out.numpy(), tet.numpy(), empty.numpy())
+        return tet, empty
+
+    def _bend_torch(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`bend` vectorised over points in torch (any device): writes ``out``, returns ``(tet, empty)``."""
         code = _near(mapping.near, x)
         near = torch.nonzero(code.bitwise_and(1)).squeeze(1)
         found, bary = mapping.locator.locate(x.index_select(0, near))
         inside = found >= 0
         idx = torch.nonzero(inside).squeeze(1)
-        r = mapping.rest_columns.index_select(1, found.index_select(0, idx))  # (12,P)
+        r = mapping.rest_rows.index_select(0, found.index_select(0, idx)).t()  # (12,P)
         b = bary.t().index_select(1, idx)  # (4,P)
         mapped = [r[i] + r[3 + 3 * i] * b[1] + r[4 + 3 * i] * b[2] + r[5 + 3 * i] * b[3]
                   for i in range(3)]  # r0 + R (b1, b2, b3) = Σ b_i r_i
-        points = x.index_copy(0, near.index_select(0, idx), torch.stack(mapped, 1))
-        outside = torch.nonzero(code.bitwise_and_(2).index_fill_(0, near.index_select(0, idx), 0)).squeeze(1)
-        vacated = outside[self._rest().member(x.index_select(0, outside)) >= 0]
-        empty = torch.zeros(len(x), dtype=torch.bool, device=self.device).index_fill_(0, vacated, True)
+        rows = near.index_select(0, idx)
+        code.index_fill_(0, rows, 0)  # mapped points are not empty
+        empty = code.bitwise_and(4).to(torch.bool)
+        unsure = torch.nonzero(code.bitwise_and_(6).eq_(2)).squeeze(1)
+        empty.index_fill_(0, unsure[self._rest().member(x.index_select(0, unsure)) >= 0], True)
+        if out.data_ptr() != x.data_ptr():
+            out.copy_(x)
+        out.index_copy_(0, rows, torch.stack(mapped, 1))
         tet = torch.full((len(x),), -1, dtype=torch.int64, device=self.device).index_copy_(0, near, found)
-        return BentPoints(points, tet, empty)
+        return tet, empty
 
     def jacobian(self, tet: torch.Tensor, frame: int = 0) -> torch.Tensor:
         """``(M,3,3)`` dx_c/dx of points in deformed tets ``tet (M,)`` of ``frame`` (identity where ``tet`` is -1)."""

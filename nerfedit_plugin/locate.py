@@ -258,6 +258,62 @@ class TetLocator:
         lo = self._lo.to(torch.float64) + (fine - 0.01) * size
         return lo, lo + 1.02 * size
 
+    def covered_cells(self, scale: torch.Tensor, offset: torch.Tensor, side: int) -> torch.Tensor:
+        """``(side³,)`` bool: the cells of the grid ``u = x scale + offset`` (cell ``(i,j,k)`` is ``[i,i+1) ×
+        [j,j+1) × [k,k+1)`` in ``u``; float64 ``scale``, ``offset``), grown by 10⁻³ of a cell, every point of which
+        some tet accepts. The border layer (``u`` index 0 or ``side - 1``) is never covered.
+
+        Let G be the union of the tets whose barycentric error bound is below ``eps / 2``: a point of G lies exactly
+        in such a tet, which therefore accepts it. A cell that no face of G's boundary meets lies wholly inside or
+        wholly outside G; it is inside if its centre lies in a tet of G (float64 barycentrics). G's boundary lies in
+        the faces of its tets that have no tet of G across them on the other side of the face plane (so overlapping
+        or inverted tets only add faces); a face meets a cell only if its bounding box does and its plane does."""
+        table, device = self._table, self.device
+        covered = torch.zeros(side ** 3, dtype=torch.bool, device=device)
+        if not table.usable.any():
+            return covered
+        good = table.usable & (table.error <= self.eps / 2)
+        k = len(table)
+        tet = torch.arange(k, device=device).repeat_interleave(4)
+        face = torch.tensor(_FACES, device=device).repeat(k, 1)  # (4K,3) corner indices; face i is opposite corner i
+        corner = torch.arange(4, device=device).repeat(k)
+        across = self._neighbours.reshape(-1).to(torch.int64)
+        a, b, c = (table.corners[tet, face[:, j]] for j in range(3))
+        normal = torch.linalg.cross(b - a, c - a)
+        own = ((table.corners[tet, corner] - a) * normal).sum(1)
+        there = across.clamp_min(0)
+        ids = table.tets[tet[:, None], face]  # (4K,3) vertex ids of the face
+        off = (table.tets[there][:, :, None] != ids[:, None]).all(2).to(torch.uint8).argmax(1)  # its corner off the face
+        other = ((table.corners[there, off] - a) * normal).sum(1)
+        closed = (across >= 0) & good[there] & (own * other < 0)
+        boundary = torch.nonzero(good[tet] & ~closed).squeeze(1)
+        # cells meeting the boundary faces (box overlap, then the plane against the cell grown by the padding)
+        u = [p[boundary] * scale + offset for p in (a, b, c)]
+        first = (torch.minimum(torch.minimum(u[0], u[1]), u[2]) - 1e-3).floor().long().clamp(0, side - 1)
+        last = (torch.maximum(torch.maximum(u[0], u[1]), u[2]) + 1e-3).floor().long().clamp(0, side - 1)
+        span = last - first + 1
+        owner, local = expand_ranges(span.prod(1))
+        sy, sz = span[owner, 1], span[owner, 2]
+        ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
+        normal_u = normal[boundary] / scale  # n·x = Σ (n_k / scale_k) (u_k - offset_k)
+        distance = ((ijk + 0.5 - u[0][owner]) * normal_u[owner]).sum(1).abs()
+        reach = 0.5 * (1 + 2e-3) * normal_u[owner].abs().sum(1) * (1 + 1e-9)
+        strides = torch.tensor([side * side, side, 1], device=device)
+        touched = torch.zeros(side ** 3, dtype=torch.bool, device=device)
+        touched[(ijk[distance <= reach] * strides).sum(1)] = True
+        # untouched inner cells: inside when the centre lies in a tet of G
+        box = torch.stack([table.corners.amin((0, 1)), table.corners.amax((0, 1))]) * scale + offset
+        axes = [torch.arange(max(1, int(box[0, i])), min(side - 1, int(box[1, i]) + 1), device=device) for i in range(3)]
+        inner = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        inner = inner[~touched[(inner * strides).sum(1)]]
+        centres = (inner + 0.5 - offset) / scale
+        found = self.member(centres)
+        hit = torch.nonzero(found >= 0).squeeze(1)
+        t = found[hit]
+        inside = good[t] & (table.exact_bary(t, centres[hit, None])[:, 0].amin(1) >= 1e-9)
+        covered[(inner[hit[inside]] * strides).sum(1)] = True
+        return covered
+
     @property
     def n_entries(self) -> int:
         """Total length of all cell lists."""

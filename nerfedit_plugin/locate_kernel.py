@@ -8,16 +8,27 @@ to the torch path and to :func:`~nerfedit_plugin.locate.locate_brute_force`; the
 
 Scalars of the working dtype (``one``, ``neg_eps``) are passed in, since a Python literal would promote float32 to
 float64. The grid of a locator reaches the kernels as :class:`LocatorArrays` (numpy views of its tensors).
+
+Threads: parallel kernels run on numba's ``workqueue`` layer unless ``NUMBA_THREADING_LAYER`` says otherwise (the
+OpenMP layer shares its runtime with torch's and changes torch's thread count; old TBB builds are refused with a
+warning), one launch at a time (:func:`launch` holds a lock: that layer does not allow concurrent launches), on as
+many threads as torch uses.
 """
 
 from __future__ import annotations
 
+import os
+import threading
 from typing import NamedTuple
 
 import numba
 import numpy as np
 import torch
 from numba import njit, prange
+
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "workqueue"
+_LAUNCH = threading.Lock()
 
 
 class LocatorArrays(NamedTuple):
@@ -119,6 +130,8 @@ def locate_points(a, points, membership, rounds, tet, bary):
 
 
 def launch(kernel, *args) -> None:
-    """Run a parallel kernel on as many threads as torch uses (so ``torch.set_num_threads`` governs both)."""
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
-    kernel(*args)
+    """Run a parallel kernel on as many threads as torch uses (``torch.set_num_threads`` governs both), one launch
+    at a time."""
+    with _LAUNCH:
+        numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+        kernel(*args)
