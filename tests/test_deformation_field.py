@@ -153,15 +153,25 @@ def assert_bend_is_point_location(field: DeformationField, rest, deformed, tets,
     return x, bent, tet_deformed, bary
 
 
-def test_bend_of_inverted_overlapping_tets_is_point_location(proxy):
+@pytest.mark.parametrize("kernel", ["numba", "torch"])
+def test_bend_of_inverted_overlapping_tets_is_point_location(proxy, kernel):
     v, tets = proxy.vertices, proxy.tets
-    field = DeformationField(v, tets, folded(v)[None])
+    field = DeformationField(v, tets, folded(v)[None], kernel=kernel)
     assert_bend_is_point_location(field, v, folded(v), tets, seed=8)
 
 
-def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted):
+@pytest.fixture(scope="module", params=["numba", "torch"])
+def lifted_field(request, proxy, lifted) -> tuple[np.ndarray, DeformationField]:
+    """``lifted`` with each bending kernel (the compiled CPU pass and the vectorised torch path)."""
+    deformed, field = lifted
+    if request.param != "numba":  # the shared field uses the CPU default, the compiled kernel
+        field = DeformationField(proxy.vertices, proxy.tets, deformed[None], kernel=request.param)
+    return deformed, field
+
+
+def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted_field):
     v, tets = proxy.vertices, proxy.tets
-    deformed, field = lifted  # T' overlaps T and leaves vacated space
+    deformed, field = lifted_field  # T' overlaps T and leaves vacated space
     x, bent, tet_deformed, bary = assert_bend_is_point_location(field, v, deformed, tets, seed=6)
     inside = tet_deformed >= 0
     assert 0.2 < inside.double().mean() < 0.8 and 0.05 < bent.empty.double().mean()
@@ -171,6 +181,23 @@ def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted):
     out = field.to_canonical(x)
     assert torch.equal(out.points, bent.points) and torch.equal(out.inside, inside)
     assert torch.equal(out.jacobian, field.jacobian(bent.tet))
+
+
+def test_bend_kernels_agree_and_bend_in_place(proxy, lifted):
+    deformed, compiled = lifted
+    vectorised = DeformationField(proxy.vertices, proxy.tets, deformed[None], kernel="torch")
+    x = sample(np.concatenate([proxy.vertices, deformed]), 50000, seed=11).float()
+    a, b = compiled.bend(x), vectorised.bend(x)
+    assert torch.equal(a.points, b.points) and torch.equal(a.tet, b.tet) and torch.equal(a.empty, b.empty)
+    assert (a.tet >= 0).any() and a.empty.any() and not torch.equal(a.points, x)
+    for field in (compiled, vectorised):
+        y = x.clone()
+        bent = field.bend(y, out=y)  # in place
+        assert bent.points is y and torch.equal(y, a.points)
+        wide = torch.zeros(len(x), 3, dtype=torch.float64)  # another dtype: cast into out
+        assert field.bend(x, out=wide).points is wide and torch.equal(wide, a.points.double())
+    with pytest.raises(ValueError, match="out must have shape"):
+        compiled.bend(x, out=torch.zeros(3, 3))
 
 
 def test_save_load_round_trip(tmp_path, proxy):

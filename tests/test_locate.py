@@ -189,3 +189,35 @@ def test_kernel_choice_is_checked():
     assert TetLocator(vertices, tets).kernel == "numba"  # the CPU default
     with pytest.raises(ValueError, match="kernel"):
         TetLocator(vertices, tets, kernel="cython")
+
+
+@pytest.mark.parametrize("hole", [False, True])
+def test_covered_cells_are_wholly_accepted(sphere_tets, hole):
+    """Every point of a covered cell (grown by 1e-3 cell) is accepted by the rule; a removed tet leaves a hole
+    whose cells are not covered. The grid is anisotropic and finer than the tets near the boundary."""
+    vertices, tets = sphere_tets
+    if hole:
+        centre = vertices[tets].mean(1)
+        tets = tets[np.linalg.norm(centre, axis=1) > 0.25]  # carve out the middle
+    locator = TetLocator(vertices, tets)
+    side = 42
+    lo, hi = vertices.min(0), vertices.max(0)
+    scale = torch.as_tensor((side - 2) / (hi - lo) * [1.0, 0.8, 0.9])
+    offset = torch.as_tensor(1.0 - lo * scale.numpy())
+    covered = locator.covered_cells(scale, offset, side)
+    cells = torch.nonzero(covered).squeeze(1)
+    assert len(cells) > 1000
+    cells = cells[torch.randperm(len(cells), generator=torch.Generator().manual_seed(0))[:1000]]
+    ijk = torch.stack([cells // (side * side), (cells // side) % side, cells % side], 1).double()
+    rng = np.random.default_rng(7)
+    u = ijk[:, None] + torch.as_tensor(rng.uniform(-1e-3, 1 + 1e-3, (len(cells), 24, 3)))
+    corners = torch.as_tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)], dtype=torch.float64)
+    u = torch.cat([u, ijk[:, None] + corners * (1 + 2e-3) - 1e-3], 1).reshape(-1, 3)
+    points = ((u - offset) / scale).float()
+    assert (locate_brute_force(vertices, tets, points)[0] >= 0).all()
+    if hole:
+        middle = offset.floor().long()  # the cell of the origin, in the hole
+        assert locate_brute_force(vertices, tets, torch.zeros(1, 3))[0].item() == -1
+        assert not covered[(middle * torch.tensor([side * side, side, 1])).sum()]
+        assert (covered.double().mean() < TetLocator(vertices, sphere_tets[1]).covered_cells(scale, offset, side)
+                .double().mean())
