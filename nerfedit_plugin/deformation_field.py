@@ -35,7 +35,7 @@ import torch
 
 from .atomic import atomic_path
 from .errors import NerfEditError
-from .locate import TetLocator
+from .locate import TetLocator, expand_ranges
 
 FORMAT_VERSION = 1
 KEYS = ("rest_vertices", "tets", "deformed_vertices")
@@ -94,8 +94,7 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     offset`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells of
     their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Bit 1 of a cell: a box
     of T' (``deformed``), padded by 10⁻³ cell, touches it; bit 2: a box of T; bit 4: every point of the cell is
-    inside T (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T).
-    Cells are at least as wide as every box, so a box touches only its corners' cells."""
+    inside T (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T)."""
     boxes = [locator.boxes() for locator in (deformed, rest)]
     lo, hi = torch.cat([box[0] for box in boxes]), torch.cat([box[1] for box in boxes])
     dtype, device, side = deformed.dtype, lo.device, NEAR_CELLS + 2
@@ -103,17 +102,19 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     if len(lo) == 0:
         return torch.ones(3, dtype=dtype, device=device), torch.zeros(3, dtype=dtype, device=device), mask
     origin, extent = lo.amin(0), (hi.amax(0) - lo.amin(0)).clamp_min(1e-12)
-    scale = torch.minimum(NEAR_CELLS / extent, (1 - 4e-3) / (hi - lo).amax(0)).to(dtype)
+    scale = (NEAR_CELLS * (1 - 1e-6) / extent).to(dtype)
     offset = (1.0 - origin * scale.to(torch.float64)).to(dtype)
     scale64, offset64 = scale.to(torch.float64), offset.to(torch.float64)  # the values points are mapped with
     strides = torch.tensor([side * side, side, 1], device=device)
     for bit, (box_lo, box_hi) in zip((1, 2), boxes):
         first = (box_lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
-        last = (box_hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1)  # first or first + 1
+        last = (box_hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1)
+        span = last - first + 1
+        owner, local = expand_ranges(span.prod(1))
+        sy, sz = span.index_select(0, owner)[:, 1], span.index_select(0, owner)[:, 2]
+        ijk = first.index_select(0, owner) + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
         marked = torch.zeros(side**3, dtype=torch.bool, device=device)
-        for corner in range(8):
-            pick = torch.tensor([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1], dtype=torch.bool, device=device)
-            marked[(torch.where(pick, last, first) * strides).sum(1)] = True
+        marked[(ijk * strides).sum(1)] = True
         mask |= marked.to(torch.uint8) * bit
     mask |= rest.covered_cells(scale64, offset64, side).to(torch.uint8) * 4
     return scale, offset, mask

@@ -244,19 +244,25 @@ class TetLocator:
         return len(self._table)
 
     def boxes(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(lo, hi)`` ``(S,3)`` float64: the sub-cells whose occupancy bit is set, padded by 1 % of a sub-cell (far
-        beyond the rounding of the cell computation). Outside every box no tet accepts a point."""
-        cells = torch.nonzero(self._cell_mask).squeeze(1)
+        """``(lo, hi)`` ``(S,3)`` float64: the cells whose 64 occupancy bits are all set, and the set sub-cells of
+        the others, padded by 1 % of a sub-cell (far beyond the rounding of the cell computation). Outside every box
+        no tet accepts a point."""
+        padded = torch.tensor(self.grid_shape, device=self.device) + 2
+
+        def coords(cell: torch.Tensor) -> torch.Tensor:
+            return torch.stack([cell // (padded[1] * padded[2]), (cell // padded[2]) % padded[1], cell % padded[2]], 1) - 1
+
+        full = torch.nonzero(self._cell_mask == -1).squeeze(1)
+        cells = torch.nonzero((self._cell_mask != 0) & (self._cell_mask != -1)).squeeze(1)
         bits = self._cell_mask.index_select(0, cells)[:, None].bitwise_right_shift(
             torch.arange(_SUB ** 3, device=self.device)).bitwise_and_(1)
         owner, bit = torch.nonzero(bits).unbind(1)
-        cell = cells.index_select(0, owner)
-        padded = torch.tensor(self.grid_shape, device=self.device) + 2
-        ijk = torch.stack([cell // (padded[1] * padded[2]), (cell // padded[2]) % padded[1], cell % padded[2]], 1) - 1
-        fine = _SUB * ijk + torch.stack([bit // (_SUB * _SUB), (bit // _SUB) % _SUB, bit % _SUB], 1)
+        fine = _SUB * coords(cells.index_select(0, owner)) + torch.stack(
+            [bit // (_SUB * _SUB), (bit // _SUB) % _SUB, bit % _SUB], 1)
         size = 1 / (_SUB * self._inv.to(torch.float64))
-        lo = self._lo.to(torch.float64) + (fine - 0.01) * size
-        return lo, lo + 1.02 * size
+        lo = self._lo.to(torch.float64) + torch.cat([_SUB * coords(full) - 0.01, fine - 0.01]) * size
+        span = torch.cat([torch.full((len(full), 1), _SUB + 0.02), torch.full((len(fine), 1), 1.02)]).to(lo)
+        return lo, lo + span * size
 
     def covered_cells(self, scale: torch.Tensor, offset: torch.Tensor, side: int) -> torch.Tensor:
         """``(side³,)`` bool: the cells of the grid ``u = x scale + offset`` (cell ``(i,j,k)`` is ``[i,i+1) ×
