@@ -14,9 +14,11 @@ from .locate_kernel import locate_point
 
 
 @njit(cache=True, inline="always")
-def _near_code(scale, offset, mask, side, x, y, z):
-    """Bits of the point's cell in the near grid (``deformation_field._near``; NaN points: 0). The cell coordinate
-    may round differently from torch's fused multiply-add, by far less than the grid's 10⁻³-cell padding."""
+def _near_code(scale, offset, mask, marked, side, x, y, z):
+    """Bits of the point's cell in the near grid (``deformation_field._near``; NaN points: 0), read only where the
+    packed ``marked`` bit of the cell is set (that bitset stays in cache; most samples stop there). The cell
+    coordinate may round differently from torch's fused multiply-add, by far less than the grid's 10⁻³-cell
+    padding."""
     cell = 0
     for i in range(3):
         value = x if i == 0 else (y if i == 1 else z)
@@ -25,18 +27,20 @@ def _near_code(scale, offset, mask, side, x, y, z):
             return np.uint8(0)
         u = min(max(u, 0.0), side - 1.0)
         cell = cell * side + int(np.floor(u))
+    if (marked[cell >> 3] >> (cell & 7)) & 1 == 0:
+        return np.uint8(0)
     return mask[cell]
 
 
 @njit(cache=True, parallel=True)
-def bend_points(x, scale, offset, mask, side, deformed, rest, rest_rows, rounds, points, tet, empty):
+def bend_points(x, scale, offset, mask, marked, side, deformed, rest, rest_rows, rounds, points, tet, empty):
     """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'), ``tet`` = deformed tet (-1 outside
     T'), ``empty`` = outside T' but inside T (certain in cells
     with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``: rest corner ``r0`` then the rest edge matrix
     ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``."""
     for m in prange(x.shape[0]):
         px, py, pz = x[m, 0], x[m, 1], x[m, 2]
-        code = _near_code(scale, offset, mask, side, px, py, pz)
+        code = _near_code(scale, offset, mask, marked, side, px, py, pz)
         points[m, 0], points[m, 1], points[m, 2] = px, py, pz
         tet[m] = -1
         empty[m] = False

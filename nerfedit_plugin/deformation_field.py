@@ -41,7 +41,7 @@ FORMAT_VERSION = 1
 KEYS = ("rest_vertices", "tets", "deformed_vertices")
 
 
-NEAR_CELLS = 128
+NEAR_CELLS = 96
 """Cells per axis of the per-frame grid that tells which points need point location."""
 
 
@@ -87,6 +87,7 @@ class _Frame(NamedTuple):
     rest_rows: torch.Tensor  # (K,12): r0, then R = [r1-r0, r2-r0, r3-r0] (rest edges as columns) row-major
     jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
+    marked: np.ndarray  # the near grid's cells with any bit, packed 8 per byte (little-endian): 1/8 of its size
 
 
 def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -170,11 +171,13 @@ class DeformationField:
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
             locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel)
+            near = _near_grid(locator, self._rest())
             self._frames[frame] = _Frame(
                 locator,
                 torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).to(self.dtype),
                 torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
-                _near_grid(locator, self._rest()),
+                near,
+                np.packbits(near[2].cpu().numpy() > 0, bitorder="little"),
             )
         return self._frames[frame]
 
@@ -212,7 +215,7 @@ class DeformationField:
         tet, empty = torch.empty(len(x), dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
         scale, offset, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
-        launch(bend_points, x.contiguous().numpy(), scale, offset, mask, NEAR_CELLS + 2, mapping.locator.arrays,
+        launch(bend_points, x.contiguous().numpy(), scale, offset, mask, mapping.marked, NEAR_CELLS + 2, mapping.locator.arrays,
                rest.arrays, mapping.rest_rows.numpy(), rest.rounds, out.numpy(), tet.numpy(), empty.numpy())
         return tet, empty
 
