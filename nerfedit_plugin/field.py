@@ -47,6 +47,12 @@ class Field(torch.nn.Module):
         self.config = config
         self.register_buffer("scene_bbox", torch.as_tensor(scene_bbox, dtype=torch.float32).reshape(2, 3))
 
+    @property
+    def view_dependent(self) -> bool:
+        """Whether the colour :meth:`query` returns depends on ``directions`` (default True). Only then does the
+        renderer rotate view directions into canonical space along bent rays."""
+        return True
+
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``points (M,3)``, unit ``directions (M,3)`` in canonical space → ``(density_or_sdf (M,), rgb (M,3))``."""
         raise NotImplementedError

@@ -8,10 +8,11 @@ sample sits at each bin centre, or uniformly at random in its bin when ``stratif
 Bending (DESIGN.md §3). With a DeformationField, a sample ``x`` (deformed space) maps to ``x_c = to_canonical(x)``:
 inside the deformed proxy T' it is mapped, in the space the object left (inside T, outside T') it is *empty* (zero
 opacity, never queried), elsewhere it is unchanged (background and other objects untouched). The view direction
-follows the bent ray: ``d_c = normalize(J d)``. The field's :meth:`~nerfedit_plugin.field.Field.occupied` grid then
+follows the bent ray: ``d_c = normalize(J d)`` (for view-dependent fields). The field's :meth:`~nerfedit_plugin.field.Field.occupied` grid then
 drops samples at their canonical position; only the kept samples are queried, in one packed batch. Bending costs
-one :meth:`~nerfedit_plugin.deformation_field.DeformationField.bend` per batch (only samples near the proxies are
-located) and the per-tet Jacobians of the kept samples only.
+one :meth:`~nerfedit_plugin.deformation_field.DeformationField.bend` per batch (in place; only samples near the
+proxies are located) and the per-tet Jacobians of the kept samples, only for fields that need them (sdf gradients,
+``Field.view_dependent`` colours; other fields get the unrotated direction, which they ignore).
 
 Opacity of a sample:
 
@@ -193,10 +194,10 @@ def _samples(field: Field, origins, directions, t, delta, config: RenderConfig, 
     (bent, packed, queried; dropped samples get α = 0)."""
     n_rays, n = t.shape
     points = (origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
-    kept = _keep(field, points, deformation, frame)
+    kept = _keep(field, points, deformation, frame, jacobian=field.kind == "sdf" or field.view_dependent)
     ray = torch.div(kept.index, n, rounding_mode="floor")
     ray_dirs = directions.index_select(0, ray)
-    query_dirs = _canonical_directions(ray_dirs, kept.jacobian)
+    query_dirs = _canonical_directions(ray_dirs, kept.jacobian) if field.view_dependent else ray_dirs
     if field.kind == "sdf":
         alpha, rgb = _sdf_alpha(field, kept, query_dirs, ray_dirs, delta.index_select(0, ray)[:, 0], config.cos_anneal)
     elif field.kind == "density":

@@ -10,7 +10,7 @@ A field author calls it from their own pytest module::
 Checks (each a public function taking the built field or its config; :func:`check_field` runs them all):
 ``config`` (dataclass with a docstring per field, lossless YAML round trip, ``_target`` a Field subclass with a
 valid ``kind``/``data``), ``query`` (shapes, dtypes, device, finite values, colours in [0,1], densities ≥ 0,
-deterministic, ``occupied`` a bool mask or None), ``checkpoint`` (save → load through the registry gives the same
+deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None), ``checkpoint`` (save → load through the registry gives the same
 queries; another backend's name is refused), ``identity`` (rendering through an identity DeformationField equals
 the unedited render — the renderer's contract for every backend) and ``extract`` (a SurfaceMesh inside the scene
 box, or a ValueError when the level is outside the field's range).
@@ -86,7 +86,8 @@ def _same_queries(a: Field, b: Field, what: str) -> None:
 
 def check_query(field: Field) -> None:
     """``query`` returns ``(M,)`` and ``(M,3)`` float tensors on the points' device, finite, rgb in [0,1],
-    density ≥ 0 (density fields), the same twice; ``occupied`` is None or an ``(M,)`` bool mask."""
+    density ≥ 0 (density fields), the same twice (and for any direction unless ``view_dependent``); ``occupied`` is
+    None or an ``(M,)`` bool mask."""
     name = type(field).__name__
     points, dirs = _probe()
     with torch.no_grad():
@@ -100,6 +101,11 @@ def check_query(field: Field) -> None:
     if field.kind == "density":
         assert value.min() >= 0, f"{name}.query: negative density"
     _same_queries(field, field, "querying again")
+    if not field.view_dependent:
+        turned = torch.nn.functional.normalize(torch.randn(dirs.shape, generator=torch.Generator().manual_seed(1)), dim=-1)
+        with torch.no_grad():
+            assert all(torch.equal(x, y) for x, y in zip(field.query(points, dirs), field.query(points, turned))), (
+                f"{name}.query: the colour depends on the direction, but view_dependent is False")
     occupied = field.occupied(points)
     assert occupied is None or (occupied.dtype == torch.bool and occupied.shape == (len(points),)), (
         f"{name}.occupied: expected None or an (M,) bool mask")

@@ -144,3 +144,10 @@ def test_occupancy_lookup_matches_the_cell_of_each_point():
     cell = u.floor().clamp(0, 4).long()
     expected = torch.tensor([bool(grid.mask[tuple(c)]) for c in cell.tolist()]) & inside
     assert torch.equal(grid.occupied(points), expected) and inside.any() and (~inside).any()
+
+
+def test_view_dependence_follows_the_colour_decoder():
+    box = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    assert NerfField(NerfConfig.tiny(), box).view_dependent  # MLP on spherical harmonics of degree 1
+    assert not NerfField(NerfConfig.tiny(sh_degree=0), box).view_dependent
+    assert not NerfField(NerfConfig(), box).view_dependent  # the default: direct colour only

@@ -109,6 +109,11 @@ class ColorDecoder(torch.nn.Module):
             torch.nn.init.zeros_(self.mlp[2].weight)
             torch.nn.init.zeros_(self.mlp[2].bias)
 
+    @property
+    def view_dependent(self) -> bool:
+        """The MLP sees the view direction (degree ≥ 1 spherical harmonics)."""
+        return self.mlp is not None and self.sh_degree > 0
+
     def forward(self, features: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         logits = features[:, :3]
         if self.mlp is not None:

@@ -39,6 +39,7 @@ class MeshField(Field):
 
     kind: ClassVar[str] = "density"
     opaque: ClassVar[bool] = True
+    view_dependent: ClassVar[bool] = False  # the colour of the closest surface point
     data: ClassVar[str] = "mesh"
 
     def __init__(self, config: MeshFieldConfig, scene_bbox: torch.Tensor) -> None:

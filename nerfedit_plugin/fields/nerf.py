@@ -77,6 +77,10 @@ class NerfField(Field):
         )
 
     # ---- the Field contract ------------------------------------------------------------------------------------
+    @property
+    def view_dependent(self) -> bool:
+        return self.color.view_dependent
+
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         values = self.grid(points)
         lo, hi = self.scene_bbox

@@ -101,6 +101,10 @@ class NeusField(Field):
         self.occupancy = OccupancyGrid(self.scene_bbox, occupancy) if occupancy else None
 
     # ---- the Field contract ------------------------------------------------------------------------------------
+    @property
+    def view_dependent(self) -> bool:
+        return self.color.view_dependent
+
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """SDF and colour; when ``points`` require grad, ``f`` carries the first-order term ``(x − x̄)·∇f(x̄)``
         (``x̄`` = detached ``x``; zero in value) so that autograd's ``∂f/∂x`` is the analytic gradient of the grid,
