@@ -33,20 +33,25 @@ def _near_code(scale, offset, mask, marked, side, x, y, z):
 
 
 @njit(cache=True, parallel=True)
-def bend_points(x, scale, offset, mask, marked, side, deformed, rest, rest_rows, rounds, points, tet, empty):
-    """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'), ``tet`` = deformed tet (-1 outside
-    T'), ``empty`` = outside T' but inside T (certain in cells
-    with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``: rest corner ``r0`` then the rest edge matrix
-    ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``."""
+def bend_points(x, scale, offset, mask, marked, side, deformed, rest, rest_rows, rounds, copy, points, tet, empty):
+    """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'; written there only with ``copy``, so
+    ``points`` may be ``x``), ``tet`` = deformed tet (-1 outside T'; not written if of length 0), ``empty`` =
+    outside T' but inside T (certain in cells with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``:
+    rest corner ``r0`` then the rest edge matrix ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``. Skipping the
+    writes a caller does not need keeps the pass over memory small."""
+    with_tet = tet.shape[0] > 0
     for m in prange(x.shape[0]):
         px, py, pz = x[m, 0], x[m, 1], x[m, 2]
         code = _near_code(scale, offset, mask, marked, side, px, py, pz)
-        points[m, 0], points[m, 1], points[m, 2] = px, py, pz
-        tet[m] = -1
+        if copy:
+            points[m, 0], points[m, 1], points[m, 2] = px, py, pz
+        if with_tet:
+            tet[m] = -1
         empty[m] = False
         if code & 1:
             t, b0, b1, b2, b3 = locate_point(deformed, px, py, pz, deformed.deep, rounds)
-            tet[m] = t
+            if with_tet:
+                tet[m] = t
             if t >= 0:
                 for i in range(3):
                     points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1 + rest_rows[t, 4 + 3 * i] * b2

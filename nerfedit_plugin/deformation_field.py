@@ -49,7 +49,7 @@ NEAR_CELLS = 96
 
 class BentPoints(NamedTuple):
     points: torch.Tensor  # (M,3) x_c (x itself where not inside T')
-    tet: torch.Tensor  # (M,) int64: the deformed tet containing x, -1 outside T'
+    tet: torch.Tensor | None  # (M,) int64: the deformed tet containing x, -1 outside T' (None if not asked for)
     empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
 
 
@@ -189,10 +189,12 @@ class DeformationField:
                                             kernel=self.kernel)
         return self._rest_locator
 
-    def bend(self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None) -> BentPoints:
+    def bend(self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True
+             ) -> BentPoints:
         """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space; report each point's deformed tet
-        (see the module docstring). ``out``: an ``(M,3)`` tensor that receives ``x_c`` (and is returned as
-        ``points``); it may be ``x`` itself, to bend in place. Otherwise ``x`` is not modified."""
+        (see the module docstring; ``tet`` is None with ``tets=False``, for callers that need no Jacobian). ``out``:
+        an ``(M,3)`` tensor that receives ``x_c`` (and is returned as ``points``); it may be ``x`` itself, to bend
+        in place. Otherwise ``x`` is not modified."""
         mapping = self._frame(frame)
         x = torch.as_tensor(x)
         if out is not None and out.shape != (len(x), 3):
@@ -201,24 +203,27 @@ class DeformationField:
         direct = out is not None and out.dtype == self.dtype and out.device == self.device and out.is_contiguous()
         target = out if direct else torch.empty_like(source)
         if mapping.locator.kernel == "numba":
-            tet, empty = self._bend_compiled(mapping, source, target)
+            tet, empty = self._bend_compiled(mapping, source, target, tets)
         else:
             tet, empty = self._bend_torch(mapping, source, target)
         if out is not None and not direct:
             target = out.copy_(target)
-        return BentPoints(target, tet, empty)
+        return BentPoints(target, tet if tets else None, empty)
 
-    def _bend_compiled(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _bend_compiled(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor, tets: bool
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`bend` in one compiled pass (:mod:`nerfedit_plugin.bend_kernel`): writes ``out``, returns
-        ``(tet, empty)``."""
+        ``(tet, empty)`` (``tet`` empty without ``tets``)."""
         from .bend_kernel import bend_points
         from .locate_kernel import launch
 
-        tet, empty = torch.empty(len(x), dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
+        x = x.contiguous()
+        tet, empty = torch.empty(len(x) if tets else 0, dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
         scale, offset, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
-        launch(bend_points, x.contiguous().numpy(), scale, offset, mask, mapping.marked, NEAR_CELLS + 2, mapping.locator.arrays,
-               rest.arrays, mapping.rest_rows.numpy(), rest.rounds, out.numpy(), tet.numpy(), empty.numpy())
+        launch(bend_points, x.numpy(), scale, offset, mask, mapping.marked, NEAR_CELLS + 2, mapping.locator.arrays,
+               rest.arrays, mapping.rest_rows.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(), out.numpy(),
+               tet.numpy(), empty.numpy())
         return tet, empty
 
     def _bend_torch(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -117,8 +117,9 @@ def _keep(field: Field, points: torch.Tensor, deformation, frame: int, jacobian:
     ``jacobian``)."""
     tet, empty = None, None
     if deformation is not None:
-        bent = deformation.bend(points, frame, out=points)  # the samples are ours: bend them in place
-        tet, empty = bent.tet.to(points.device), bent.empty.to(points.device)
+        bent = deformation.bend(points, frame, out=points, tets=jacobian)  # the samples are ours: bend in place
+        tet = None if bent.tet is None else bent.tet.to(points.device)
+        empty = bent.empty.to(points.device)
     keep = field.occupied(points)
     if empty is not None:
         keep = ~empty if keep is None else keep & ~empty
