@@ -37,7 +37,7 @@ import torch
 
 from .atomic import atomic_path
 from .errors import NerfEditError
-from .locate import TetLocator, expand_ranges
+from .locate import TetLocator, box_cells
 
 FORMAT_VERSION = 1
 KEYS = ("rest_vertices", "tets", "deformed_vertices")
@@ -89,7 +89,7 @@ class _Frame(NamedTuple):
     rest_rows: torch.Tensor  # (K,12): r0, then R = [r1-r0, r2-r0, r3-r0] (rest edges as columns) row-major
     jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
-    marked: np.ndarray  # the near grid's cells with any bit, packed 8 per byte (little-endian): 1/8 of its size
+    marked: np.ndarray | None  # compiled kernel: the near grid's cells with any bit, 8 per byte (little-endian)
 
 
 def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -112,10 +112,7 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     for bit, (box_lo, box_hi) in zip((1, 2), boxes):
         first = (box_lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
         last = (box_hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1)
-        span = last - first + 1
-        owner, local = expand_ranges(span.prod(1))
-        sy, sz = span.index_select(0, owner)[:, 1], span.index_select(0, owner)[:, 2]
-        ijk = first.index_select(0, owner) + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
+        _, ijk = box_cells(first, last)
         marked = torch.zeros(side**3, dtype=torch.bool, device=device)
         marked[(ijk * strides).sum(1)] = True
         mask |= marked.to(torch.uint8) * bit
@@ -143,6 +140,8 @@ class DeformationField:
         self.rest_vertices, self.tets, self.deformed_vertices = _validate(
             rest_vertices, tets, deformed_vertices, "DeformationField")
         self.device, self.dtype = torch.device(device), dtype
+        if kernel not in ("auto", "numba", "torch") or (kernel == "numba" and self.device.type != "cpu"):
+            raise ValueError(f"kernel must be 'auto', 'torch' or (on the CPU) 'numba', got {kernel!r}")
         self.kernel = kernel  # TetLocator's: "auto" (compiled on the CPU), "numba" or "torch"
         self._frames: dict[int, _Frame] = {}
         self._rest_locator: TetLocator | None = None
@@ -179,7 +178,7 @@ class DeformationField:
                 torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).to(self.dtype),
                 torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
                 near,
-                np.packbits(near[2].cpu().numpy() > 0, bitorder="little"),
+                np.packbits(near[2].numpy() > 0, bitorder="little") if locator.kernel == "numba" else None,
             )
         return self._frames[frame]
 

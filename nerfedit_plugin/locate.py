@@ -250,7 +250,8 @@ class TetLocator:
         padded = torch.tensor(self.grid_shape, device=self.device) + 2
 
         def coords(cell: torch.Tensor) -> torch.Tensor:
-            return torch.stack([cell // (padded[1] * padded[2]), (cell // padded[2]) % padded[1], cell % padded[2]], 1) - 1
+            ijk = torch.stack([cell // (padded[1] * padded[2]), (cell // padded[2]) % padded[1], cell % padded[2]], 1)
+            return ijk - 1
 
         full = torch.nonzero(self._cell_mask == -1).squeeze(1)
         cells = torch.nonzero((self._cell_mask != 0) & (self._cell_mask != -1)).squeeze(1)
@@ -297,10 +298,7 @@ class TetLocator:
         u = [p[boundary] * scale + offset for p in (a, b, c)]
         first = (torch.minimum(torch.minimum(u[0], u[1]), u[2]) - 1e-3).floor().long().clamp(0, side - 1)
         last = (torch.maximum(torch.maximum(u[0], u[1]), u[2]) + 1e-3).floor().long().clamp(0, side - 1)
-        span = last - first + 1
-        owner, local = expand_ranges(span.prod(1))
-        sy, sz = span[owner, 1], span[owner, 2]
-        ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
+        owner, ijk = box_cells(first, last)
         normal_u = normal[boundary] / scale  # n·x = Σ (n_k / scale_k) (u_k - offset_k)
         distance = ((ijk + 0.5 - u[0][owner]) * normal_u[owner]).sum(1).abs()
         reach = 0.5 * (1 + 2e-3) * normal_u[owner].abs().sum(1) * (1 + 1e-9)
@@ -376,17 +374,12 @@ class TetLocator:
             return empty, empty, empty.to(torch.float64).reshape(0, 8), empty.reshape(0, 3)
         first = self._cell_coords(table.box_lo[ids]).to(torch.int64).clamp_min(0)
         last = torch.minimum(self._cell_coords(table.box_hi[ids]).to(torch.int64), shape - 1)
-        span = last - first + 1
-        counts = span.prod(1)
         h = 1 / self._inv.to(torch.float64)
         lo = self._lo.to(torch.float64)
         cells, tets, depths, coords = [], [], [], []
-        for a, b in _batches(counts):
-            owner, local = expand_ranges(counts[a:b])
-            owner += a
-            sy, sz = span[owner, 1], span[owner, 2]
-            ijk = first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
-            tet = ids[owner]
+        for a, b in _batches((last - first + 1).prod(1)):
+            owner, ijk = box_cells(first[a:b], last[a:b])
+            tet = ids[owner + a]
             # max over the cell box (inflated to cover rounding of the cell assignment) of each b_i.
             center = table.exact_bary(tet, (lo + (ijk + 0.5) * h)[:, None])[:, 0]
             reach = (table.grads[tet].abs() * (h * (0.5 + 1e-3))).sum(2)
@@ -554,6 +547,15 @@ class TetLocator:
             return torch.where(inside, found, -1), None
         b = self._bary(torch.where(inside, found, 0), columns)
         return torch.where(inside, found, -1), [torch.where(inside, x, 0.0) for x in b]
+
+
+def box_cells(first: torch.Tensor, last: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(owner, ijk)``: every integer cell ``ijk (P,3)`` of the boxes ``[first_b, last_b]`` (``(B,3)``, inclusive,
+    ``last >= first``), with the index ``owner (P,)`` of its box."""
+    span = last - first + 1
+    owner, local = expand_ranges(span.prod(1))
+    sy, sz = span[owner, 1], span[owner, 2]
+    return owner, first[owner] + torch.stack([local // (sy * sz), (local // sz) % sy, local % sz], 1)
 
 
 def expand_ranges(counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

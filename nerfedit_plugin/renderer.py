@@ -8,10 +8,11 @@ sample sits at each bin centre, or uniformly at random in its bin when ``stratif
 Bending (DESIGN.md §3). With a DeformationField, a sample ``x`` (deformed space) maps to ``x_c = to_canonical(x)``:
 inside the deformed proxy T' it is mapped, in the space the object left (inside T, outside T') it is *empty* (zero
 opacity, never queried), elsewhere it is unchanged (background and other objects untouched). The view direction
-follows the bent ray: ``d_c = normalize(J d)`` (for view-dependent fields). The field's :meth:`~nerfedit_plugin.field.Field.occupied` grid then
-drops samples at their canonical position; only the kept samples are queried, in one packed batch. Bending costs
-one :meth:`~nerfedit_plugin.deformation_field.DeformationField.bend` per batch (in place; only samples near the
-proxies are located) and the per-tet Jacobians of the kept samples, only for fields that need them (sdf gradients,
+follows the bent ray: ``d_c = normalize(J d)`` (for view-dependent fields). The field's
+:meth:`~nerfedit_plugin.field.Field.occupied` grid then drops samples at their canonical position; only the kept
+samples are queried, in one packed batch. Bending costs one
+:meth:`~nerfedit_plugin.deformation_field.DeformationField.bend` per batch (in place; only samples near the proxies
+are located) and the per-tet Jacobians of the kept samples, only for fields that need them (sdf gradients,
 ``Field.view_dependent`` colours; other fields get the unrotated direction, which they ignore).
 
 Opacity of a sample:

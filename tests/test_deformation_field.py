@@ -253,3 +253,8 @@ def test_cuda_to_canonical_matches_cpu(proxy):
     gpu = DeformationField(proxy.vertices, proxy.tets, deformed[None], device="cuda").to_canonical(x.cuda())
     assert torch.equal(gpu.inside.cpu(), cpu.inside) and torch.equal(gpu.empty.cpu(), cpu.empty)
     assert torch.allclose(gpu.points.cpu(), cpu.points, atol=1e-5)
+
+
+def test_unknown_kernel_is_refused_at_construction(proxy):
+    with pytest.raises(ValueError, match="kernel"):
+        DeformationField(proxy.vertices, proxy.tets, proxy.vertices[None], kernel="cython")
