@@ -3,6 +3,14 @@ one parallel pass, the near-grid test, the location in the deformed proxy T' and
 the membership test in the rest proxy T (vacated space). The same rules, float expressions and grids as the torch
 path (:meth:`DeformationField._bend_torch`), so the answers are identical; the vectorised torch path pays a pass
 over memory per step and per subset, this one touches each point once.
+
+Points go in blocks of ``BLOCK``, one thread per block. A block first computes the near-grid bits of all its points
+in loops the compiler vectorises (indices from 0 over block slices: no negative-index wraparound to test), then
+skips its points eight at a time while their bits are all zero (most render samples are far from the proxies) and
+settles the others in order. Render samples run along rays, so the tet that located the previous point (in T', and
+in T for membership) is tried first: a point it accepts with ``min b ≥ final`` (deep in a safe tet; any acceptance
+for membership) has exactly the answer of the walk or the scan (see :mod:`nerfedit_plugin.locate`); otherwise the
+point is located as usual.
 """
 
 from __future__ import annotations
@@ -10,54 +18,91 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .locate_kernel import locate_point
+from .locate_kernel import _bary, locate_point
+
+BLOCK = 4096
+"""Points per thread task (a multiple of 8: their bits are scanned as 64-bit words)."""
+
+
+@njit(cache=True)
+def _codes(x, scale, offset, mask, side, codes):
+    """``codes[m]`` = the near-grid bits of point ``x[m]`` (``deformation_field._near``; NaN: cell 0, whose only
+    tets are none). The cell coordinate ``clamp(x scale + offset, 0, side − 1)`` may round differently from torch's
+    fused multiply-add, by far less than the grid's 10⁻³-cell padding."""
+    flat = x.ravel()
+    zero = scale[0] - scale[0]
+    top = zero + (side - 1)
+    stride = np.int32(side)
+    cell = np.empty(len(codes), dtype=np.int32)
+    for m in range(len(codes)):
+        index = np.int32(0)
+        for i in range(3):
+            u = flat[3 * m + i] * scale[i] + offset[i]
+            u = u if u > zero else zero
+            index = index * stride + np.int32(u if u < top else top)
+        cell[m] = index
+    for m in range(len(codes)):
+        codes[m] = mask[cell[m]]
 
 
 @njit(cache=True, inline="always")
-def _near_code(scale, offset, mask, marked, side, x, y, z):
-    """Bits of the point's cell in the near grid (``deformation_field._near``; NaN points: 0), read only where the
-    packed ``marked`` bit of the cell is set (that bitset stays in cache; most samples stop there). The cell
-    coordinate may round differently from torch's fused multiply-add, by far less than the grid's 10⁻³-cell
-    padding."""
-    cell = 0
-    for i in range(3):
-        value = x if i == 0 else (y if i == 1 else z)
-        u = value * scale[i] + offset[i]
-        if u != u:
-            return np.uint8(0)
-        u = min(max(u, 0.0), side - 1.0)
-        cell = cell * side + int(np.floor(u))
-    if (marked[cell >> 3] >> (cell & 7)) & 1 == 0:
-        return np.uint8(0)
-    return mask[cell]
+def _deep_in(a, t, x, y, z, final):
+    """``(accepted, b0, b1, b2, b3)``: tet ``t`` (``-1``: none) accepts the point with ``min b >= final[t]``."""
+    zero = a.one - a.one
+    if t < 0:
+        return False, zero, zero, zero, zero
+    b0, b1, b2, b3 = _bary(a.rows, t, x, y, z, a.one)
+    return min(min(b0, b1), min(b2, b3)) >= final[t], b0, b1, b2, b3
 
 
 @njit(cache=True, parallel=True)
-def bend_points(x, scale, offset, mask, marked, side, deformed, rest, rest_rows, rounds, copy, points, tet, empty):
+def bend_points(x, scale, offset, mask, side, deformed, rest, rest_rows, rounds, copy, points, tet, empty):
     """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'; written there only with ``copy``, so
     ``points`` may be ``x``), ``tet`` = deformed tet (-1 outside T'; not written if of length 0), ``empty`` =
     outside T' but inside T (certain in cells with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``:
     rest corner ``r0`` then the rest edge matrix ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``. Skipping the
     writes a caller does not need keeps the pass over memory small."""
     with_tet = tet.shape[0] > 0
-    for m in prange(x.shape[0]):
-        px, py, pz = x[m, 0], x[m, 1], x[m, 2]
-        code = _near_code(scale, offset, mask, marked, side, px, py, pz)
+    n = x.shape[0]
+    for block in prange((n + BLOCK - 1) // BLOCK):
+        first, stop = block * BLOCK, min(n, (block + 1) * BLOCK)
+        codes = np.zeros(BLOCK, dtype=np.uint8)
+        _codes(x[first:stop], scale, offset, mask, side, codes[:stop - first])
         if copy:
-            points[m, 0], points[m, 1], points[m, 2] = px, py, pz
+            points[first:stop] = x[first:stop]
         if with_tet:
-            tet[m] = -1
-        empty[m] = False
-        if code & 1:
-            t, b0, b1, b2, b3 = locate_point(deformed, px, py, pz, deformed.deep, rounds)
-            if with_tet:
-                tet[m] = t
-            if t >= 0:
-                for i in range(3):
-                    points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1 + rest_rows[t, 4 + 3 * i] * b2
-                                    + rest_rows[t, 5 + 3 * i] * b3)
+            tet[first:stop] = -1
+        empty[first:stop] = False
+        words = codes.view(np.uint64)
+        last, last_rest = -1, -1
+        for word in range(BLOCK // 8):
+            if words[word] == 0:
                 continue
-        if code & 4:
-            empty[m] = True
-        elif code & 2:
-            empty[m] = locate_point(rest, px, py, pz, rest.accept, rounds)[0] >= 0
+            for q in range(8 * word, 8 * word + 8):
+                bits = codes[q]
+                if bits == 0:
+                    continue
+                m = first + q
+                px, py, pz = x[m, 0], x[m, 1], x[m, 2]
+                t = -1
+                if bits & 1:
+                    found, b0, b1, b2, b3 = _deep_in(deformed, last, px, py, pz, deformed.deep)
+                    if found:
+                        t = last
+                    else:
+                        t, b0, b1, b2, b3 = locate_point(deformed, px, py, pz, deformed.deep, rounds)
+                        last = t
+                if t >= 0:
+                    if with_tet:
+                        tet[m] = t
+                    for i in range(3):
+                        points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1 + rest_rows[t, 4 + 3 * i] * b2
+                                        + rest_rows[t, 5 + 3 * i] * b3)
+                elif bits & 4:
+                    empty[m] = True
+                elif bits & 2:
+                    inside = _deep_in(rest, last_rest, px, py, pz, rest.accept)[0]
+                    if not inside:
+                        last_rest = locate_point(rest, px, py, pz, rest.accept, rounds)[0]
+                        inside = last_rest >= 0
+                    empty[m] = inside

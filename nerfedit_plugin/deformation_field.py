@@ -89,7 +89,6 @@ class _Frame(NamedTuple):
     rest_rows: torch.Tensor  # (K,12): r0, then R = [r1-r0, r2-r0, r3-r0] (rest edges as columns) row-major
     jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
-    marked: np.ndarray | None  # compiled kernel: the near grid's cells with any bit, 8 per byte (little-endian)
 
 
 def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -178,7 +177,6 @@ class DeformationField:
                 torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).to(self.dtype),
                 torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
                 near,
-                np.packbits(near[2].numpy() > 0, bitorder="little") if locator.kernel == "numba" else None,
             )
         return self._frames[frame]
 
@@ -220,9 +218,9 @@ class DeformationField:
         tet, empty = torch.empty(len(x) if tets else 0, dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
         scale, offset, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
-        launch(bend_points, x.numpy(), scale, offset, mask, mapping.marked, NEAR_CELLS + 2, mapping.locator.arrays,
-               rest.arrays, mapping.rest_rows.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(), out.numpy(),
-               tet.numpy(), empty.numpy())
+        launch(bend_points, x.numpy(), scale, offset, mask, NEAR_CELLS + 2, mapping.locator.arrays, rest.arrays,
+               mapping.rest_rows.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(), out.numpy(), tet.numpy(),
+               empty.numpy())
         return tet, empty
 
     def _bend_torch(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
