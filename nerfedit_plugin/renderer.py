@@ -113,14 +113,19 @@ def ray_box(origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor) 
 
 
 def _keep(field: Field, points: torch.Tensor, deformation, frame: int, jacobian: bool = True) -> _Kept:
-    """Bend flat samples to canonical space and keep those neither empty (vacated) nor rejected by the occupancy
-    grid (one mask, one ``nonzero``); the Jacobians are gathered for the kept samples only (not at all without
-    ``jacobian``)."""
-    tet, empty = None, None
+    """Bend flat samples to canonical space and keep those neither empty (vacated) nor rejected by
+    ``field.occupied`` (one mask, one ``nonzero``); the Jacobians are gathered for the kept samples only (not at
+    all without ``jacobian``). An opaque field's ``occupied`` is its exact inside test, dear per sample: it skips
+    the empty samples (one more ``nonzero``), where a grid lookup is cheaper than that."""
+    tet, empty, live = None, None, None
     if deformation is not None:
         bent = deformation.bend(points, frame, out=points, tets=jacobian)  # the samples are ours: bend in place
         tet = None if bent.tet is None else bent.tet.to(points.device)
         empty = bent.empty.to(points.device)
+        if field.opaque:
+            live = torch.nonzero(~empty).squeeze(1)
+            points, empty = points.index_select(0, live), None
+            tet = None if tet is None else tet.index_select(0, live)
     keep = field.occupied(points)
     if empty is not None:
         keep = ~empty if keep is None else keep & ~empty
@@ -130,6 +135,8 @@ def _keep(field: Field, points: torch.Tensor, deformation, frame: int, jacobian:
         index = torch.nonzero(keep).squeeze(1)
         points = points.index_select(0, index)
         tet = None if tet is None else tet.index_select(0, index)
+    if live is not None:
+        index = live.index_select(0, index)
     if deformation is None or not jacobian:
         return _Kept(index, points, None)
     return _Kept(index, points, deformation.jacobian(tet, frame).to(points))
