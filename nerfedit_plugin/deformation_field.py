@@ -95,8 +95,9 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     """``(scale (3,), offset (3,), mask ((C+2)³,) uint8)``, ``C = NEAR_CELLS``: cell coordinates ``u = x scale +
     offset`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells of
     their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Bit 1 of a cell: a box
-    of T' (``deformed``), padded by 10⁻³ cell, touches it; bit 2: a box of T; bit 4: every point of the cell is
-    inside T (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T)."""
+    of T' (``deformed``), padded by 10⁻³ cell, touches it and a tet of T' may reach it
+    (:meth:`TetLocator.reach_cells`); bit 2: the same for T; bit 4: every point of the cell is inside T
+    (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T)."""
     boxes = [locator.boxes() for locator in (deformed, rest)]
     lo, hi = torch.cat([box[0] for box in boxes]), torch.cat([box[1] for box in boxes])
     dtype, device, side = deformed.dtype, lo.device, NEAR_CELLS + 2
@@ -108,13 +109,13 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     offset = (1.0 - origin * scale.to(torch.float64)).to(dtype)
     scale64, offset64 = scale.to(torch.float64), offset.to(torch.float64)  # the values points are mapped with
     strides = torch.tensor([side * side, side, 1], device=device)
-    for bit, (box_lo, box_hi) in zip((1, 2), boxes):
+    for bit, locator, (box_lo, box_hi) in zip((1, 2), (deformed, rest), boxes):
         first = (box_lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
         last = (box_hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1)
         _, ijk = box_cells(first, last)
         marked = torch.zeros(side**3, dtype=torch.bool, device=device)
         marked[(ijk * strides).sum(1)] = True
-        mask |= marked.to(torch.uint8) * bit
+        mask |= (marked & locator.reach_cells(scale64, offset64, side)).to(torch.uint8) * bit
     mask |= rest.covered_cells(scale64, offset64, side).to(torch.uint8) * 4
     return scale, offset, mask
 

@@ -318,6 +318,31 @@ class TetLocator:
         covered[(inner[hit[inside]] * strides).sum(1)] = True
         return covered
 
+    def reach_cells(self, scale: torch.Tensor, offset: torch.Tensor, side: int) -> torch.Tensor:
+        """``(side³,)`` bool: the cells of the grid ``u = x scale + offset`` (as in :meth:`covered_cells`; ``u``
+        clamped to ``[0, side)``) in which some tet may accept a point. Per usable tet, the cells meeting its
+        inflated box, grown by 10⁻³ of a cell, in which every ``b_i`` reaches ``−2 tol`` (the cell test of the grid
+        build: the max of ``b_i`` over a cell is ``b_i(centre) + Σ_k |∂b_i/∂x_k| half_k``); cells of the border
+        layer whenever the box meets them, since they also take the points clamped into them. Compiled
+        (:func:`~nerfedit_plugin.locate_kernel.mark_reach`) on the CPU for any device: one pass over the cells of
+        the tet boxes."""
+        from .locate_kernel import mark_reach
+
+        table = self._table
+        ids = torch.nonzero(table.usable).squeeze(1).cpu()
+        scale, offset = scale.cpu().to(torch.float64), offset.cpu().to(torch.float64)
+        grads, origin = table.grads.cpu()[ids], table.corners.cpu()[ids, 0]
+        first = (table.box_lo.cpu()[ids] * scale + offset - 1e-3).floor().long().clamp(0, side - 1)
+        last = (table.box_hi.cpu()[ids] * scale + offset + 1e-3).floor().long().clamp(0, side - 1)
+        # b_i at the centre of cell ijk, (ijk + ½ − offset) / scale, is Σ_k slope_ik ijk_k + value_i
+        slope = grads / scale
+        value = (grads * ((0.5 - offset) / scale - origin)[:, None]).sum(2)
+        value[:, 0] += 1
+        value += (grads.abs() * ((0.5 + 1e-3) / scale)).sum(2) + 2 * table.tolerance.cpu()[ids, None]
+        reach = np.zeros(side ** 3, dtype=np.bool_)
+        mark_reach(first.numpy(), last.numpy(), slope.numpy(), value.numpy(), side, reach)
+        return torch.from_numpy(reach).to(self.device)
+
     @property
     def n_entries(self) -> int:
         """Total length of all cell lists."""

@@ -129,6 +129,26 @@ def locate_points(a, points, membership, rounds, tet, bary):
             bary[0, m], bary[1, m], bary[2, m], bary[3, m] = b0, b1, b2, b3
 
 
+@njit(cache=True)
+def mark_reach(first, last, slope, value, side, reach):
+    """``reach[cell] = True`` for the cells ``ijk`` of each box ``[first_t, last_t]`` where every
+    ``slope_t ijk + value_t`` (4 values) is ``>= 0``, and for its cells in the border layer
+    (:meth:`~nerfedit_plugin.locate.TetLocator.reach_cells`)."""
+    for t in range(first.shape[0]):
+        for i in range(first[t, 0], last[t, 0] + 1):
+            for j in range(first[t, 1], last[t, 1] + 1):
+                for k in range(first[t, 2], last[t, 2] + 1):
+                    cell = (i * side + j) * side + k
+                    if i == 0 or j == 0 or k == 0 or i == side - 1 or j == side - 1 or k == side - 1:
+                        reach[cell] = True
+                        continue
+                    low = np.inf
+                    for f in range(4):
+                        low = min(low, slope[t, f, 0] * i + slope[t, f, 1] * j + slope[t, f, 2] * k + value[t, f])
+                    if low >= 0.0:
+                        reach[cell] = True
+
+
 def launch(kernel, *args) -> None:
     """Run a parallel kernel on as many threads as torch uses (``torch.set_num_threads`` governs both), one launch
     at a time."""

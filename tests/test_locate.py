@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.locate import EPS, TetLocator, barycentric, locate_brute_force
+from nerfedit_plugin.locate import EPS, TetLocator, barycentric, box_cells, locate_brute_force
 
 
 @pytest.fixture(params=["numba", "torch"])
@@ -191,33 +191,67 @@ def test_kernel_choice_is_checked():
         TetLocator(vertices, tets, kernel="cython")
 
 
-@pytest.mark.parametrize("hole", [False, True])
-def test_covered_cells_are_wholly_accepted(sphere_tets, hole):
-    """Every point of a covered cell (grown by 1e-3 cell) is accepted by the rule; a removed tet leaves a hole
-    whose cells are not covered. The grid is anisotropic and finer than the tets near the boundary."""
-    vertices, tets = sphere_tets
-    if hole:
-        centre = vertices[tets].mean(1)
-        tets = tets[np.linalg.norm(centre, axis=1) > 0.25]  # carve out the middle
-    locator = TetLocator(vertices, tets)
-    side = 42
+def anisotropic_grid(vertices: np.ndarray, side: int = 42) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """``(scale, offset, side)`` of a cell grid ``u = x scale + offset`` over the mesh, finer than the tets near
+    the boundary, with other cell sizes per axis."""
     lo, hi = vertices.min(0), vertices.max(0)
     scale = torch.as_tensor((side - 2) / (hi - lo) * [1.0, 0.8, 0.9])
-    offset = torch.as_tensor(1.0 - lo * scale.numpy())
-    covered = locator.covered_cells(scale, offset, side)
-    cells = torch.nonzero(covered).squeeze(1)
-    assert len(cells) > 1000
+    return scale, torch.as_tensor(1.0 - lo * scale.numpy()), side
+
+
+def points_in_cells(cells: torch.Tensor, scale: torch.Tensor, offset: torch.Tensor, side: int) -> torch.Tensor:
+    """Up to 1000 of the cells (float32 points): 24 random points of each, grown by 1e-3 cell, and its 8 corners."""
     cells = cells[torch.randperm(len(cells), generator=torch.Generator().manual_seed(0))[:1000]]
     ijk = torch.stack([cells // (side * side), (cells // side) % side, cells % side], 1).double()
     rng = np.random.default_rng(7)
     u = ijk[:, None] + torch.as_tensor(rng.uniform(-1e-3, 1 + 1e-3, (len(cells), 24, 3)))
     corners = torch.as_tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)], dtype=torch.float64)
     u = torch.cat([u, ijk[:, None] + corners * (1 + 2e-3) - 1e-3], 1).reshape(-1, 3)
-    points = ((u - offset) / scale).float()
-    assert (locate_brute_force(vertices, tets, points)[0] >= 0).all()
+    return ((u - offset) / scale).float()
+
+
+@pytest.mark.parametrize("hole", [False, True])
+def test_covered_cells_are_wholly_accepted(sphere_tets, hole):
+    """Every point of a covered cell (grown by 1e-3 cell) is accepted by the rule; a removed tet leaves a hole
+    whose cells are not covered."""
+    vertices, tets = sphere_tets
+    if hole:
+        centre = vertices[tets].mean(1)
+        tets = tets[np.linalg.norm(centre, axis=1) > 0.25]  # carve out the middle
+    locator = TetLocator(vertices, tets)
+    scale, offset, side = anisotropic_grid(vertices)
+    covered = locator.covered_cells(scale, offset, side)
+    cells = torch.nonzero(covered).squeeze(1)
+    assert len(cells) > 1000
+    assert (locate_brute_force(vertices, tets, points_in_cells(cells, scale, offset, side))[0] >= 0).all()
     if hole:
         middle = offset.floor().long()  # the cell of the origin, in the hole
         assert locate_brute_force(vertices, tets, torch.zeros(1, 3))[0].item() == -1
         assert not covered[(middle * torch.tensor([side * side, side, 1])).sum()]
         assert (covered.double().mean() < TetLocator(vertices, sphere_tets[1]).covered_cells(scale, offset, side)
                 .double().mean())
+
+
+def test_reach_cells_hold_every_accepted_point(sphere_tets):
+    """No point of a cell left out of ``reach_cells`` (grown by 1e-3 cell) is accepted, and every accepted point
+    near the surface lies in a reached cell; the face-plane test leaves out cells that the tet boxes meet."""
+    vertices, tets = sphere_tets
+    locator = TetLocator(vertices, tets)
+    scale, offset, side = anisotropic_grid(vertices)
+    reach = locator.reach_cells(scale, offset, side)
+    boxes = locator.boxes()
+    first = (boxes[0] * scale + offset).floor().long().clamp(0, side - 1)
+    last = (boxes[1] * scale + offset).floor().long().clamp(0, side - 1)
+    met = torch.zeros(side ** 3, dtype=torch.bool)
+    met[(box_cells(first, last)[1] * torch.tensor([side * side, side, 1])).sum(1)] = True
+    left_out = torch.nonzero(met & ~reach).squeeze(1)
+    assert len(left_out) > 100
+    assert (locate_brute_force(vertices, tets, points_in_cells(left_out, scale, offset, side))[0] == -1).all()
+    rng = np.random.default_rng(3)
+    direction = rng.normal(size=(100000, 3))
+    radius = np.linalg.norm(vertices, axis=1).max() * rng.uniform(0.9, 1.1, (100000, 1))
+    points = torch.as_tensor(direction / np.linalg.norm(direction, axis=1, keepdims=True) * radius).float()
+    accepted = points[locate_brute_force(vertices, tets, points)[0] >= 0]
+    assert len(accepted) > 1000
+    ijk = (accepted.double() * scale + offset).floor().long().clamp(0, side - 1)
+    assert reach[(ijk * torch.tensor([side * side, side, 1])).sum(1)].all()
