@@ -15,12 +15,13 @@ a negative determinant; where inverted tets overlap others, the smallest tet ind
 
 Cost. A per-frame ``NEAR_CELLS``³ grid over T and T' marks, separately for each proxy, the cells touched by a
 sub-cell in which its point locator may accept a point (padded by 10⁻³ of a cell, far beyond the float error of the
-cell computation), and the cells wholly inside T: only points in cells marked for T' are located in T'; those not
-inside T' are empty in cells wholly inside T, tested for membership in T (no smallest index needed) in the other
-cells marked for T, and outside (identity) elsewhere. :meth:`DeformationField.bend` returns the deformed tet of each
-point instead of a ``(M,3,3)`` Jacobian: callers gather per-tet matrices (:meth:`DeformationField.jacobian`) only
-for the points they keep. On the CPU (``kernel="auto"``) all of it is one compiled pass per batch
-(:mod:`nerfedit_plugin.bend_kernel`); ``kernel="torch"`` runs the same rules vectorised on any device.
+cell computation) and that one of its tets may reach (:meth:`TetLocator.reach_cells`), and the cells wholly inside
+T: only points in cells marked for T' are located in T'; those not inside T' are empty in cells wholly inside T,
+tested for membership in T (no smallest index needed) in the other cells marked for T, and outside (identity)
+elsewhere. :meth:`DeformationField.bend` returns the deformed tet of each point instead of a ``(M,3,3)`` Jacobian:
+callers gather per-tet matrices (:meth:`DeformationField.jacobian`) only for the points they keep. On the CPU
+(``kernel="auto"``) all of it is one compiled pass per batch (:mod:`nerfedit_plugin.bend_kernel`);
+``kernel="torch"`` runs the same rules vectorised on any device.
 
 Saved as ``deformation.npz`` (``format_version``, ``rest_vertices``, ``tets``, ``deformed_vertices``); it loads
 without the deformer that made it. Locators and grids are built lazily (one per frame on T', one on T) and cached.

@@ -63,7 +63,7 @@ def test_initial_field_is_the_signed_distance_of_a_sphere():
     points, rho = points[rho > RADIUS / 2], rho[rho > RADIUS / 2]
     error = (sdf(field, points) - (points.norm(dim=1) - RADIUS)).abs()
     assert error.max() > 1e-4 and (error <= 3 * h * h / (8 * rho) + 1e-6).all()
-    assert field.kind == "sdf" and float(field.sharpness() * field.cell) == pytest.approx(field.config.sharpness_init)
+    assert field.kind == "sdf" and float(field.sharpness().detach() * field.cell) == pytest.approx(field.config.sharpness_init)
 
 
 def test_eikonal_loss_vanishes_on_exact_distance_fields():
