@@ -17,7 +17,6 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,19 +27,10 @@ sys.path.insert(0, str(ROOT))
 from deformers.cage import CageConfig, CageDeformer, auto_cage, validate_cage  # noqa: E402
 from nerfedit_plugin.editspec import parse_edit_spec  # noqa: E402
 from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
+from timing import best_of  # noqa: E402
 
 TARGET_BIND_S = 1.0
 TARGET_POSE_MS = 20.0
-
-
-def best_of(fn, repeat: int) -> float:
-    """Smallest wall time of ``repeat`` calls (seconds)."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def main() -> None:

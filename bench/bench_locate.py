@@ -25,6 +25,7 @@ from nerfedit_plugin.deformation_field import DeformationField
 from nerfedit_plugin.locate import TetLocator, locate_brute_force
 from nerfedit_plugin.proxy import tet_signed_volumes
 from nerfedit_plugin.samples import sample_mesh_path
+from timing import best_of
 
 CACHE = Path("/tmp/nerfedit_bench_locate")
 
@@ -57,16 +58,6 @@ def tet_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
     return vertices, tets
 
 
-def best_time(function, repeats: int) -> float:
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return min(times)
-
-
 def uniform_points(vertices: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
     lo, hi = vertices.min(0), vertices.max(0)
     centre, half = (lo + hi) / 2, (hi - lo) / 2 * 1.1
@@ -83,20 +74,20 @@ def bench_mesh(name: str, n_points: int, repeats: int, check: int) -> None:
 
     cells = np.hstack([np.full((len(tets), 1), 4), tets]).ravel()
     grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), vertices)
-    vtk = best_time(lambda: grid.find_containing_cell(points), max(1, repeats // 2))
+    vtk = best_of(lambda: grid.find_containing_cell(points), max(1, repeats // 2), warmup=True)
     vtk_ids = grid.find_containing_cell(points)
 
     start = time.perf_counter()
     locator = TetLocator(vertices, tets)
     build = time.perf_counter() - start
-    ours = best_time(lambda: locator.locate(torch_points), repeats)
+    ours = best_of(lambda: locator.locate(torch_points), repeats, warmup=True)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
-    ours_1 = best_time(lambda: locator.locate(torch_points), repeats)
+    ours_1 = best_of(lambda: locator.locate(torch_points), repeats, warmup=True)
     torch.set_num_threads(threads)
     ids, _ = locator.locate(torch_points)
     vectorised = TetLocator(vertices, tets, kernel="torch")
-    ours_torch = best_time(lambda: vectorised.locate(torch_points), repeats)
+    ours_torch = best_of(lambda: vectorised.locate(torch_points), repeats, warmup=True)
 
     print(f"VTK find_containing_cell   {n_points / vtk / 1e6:7.2f} M points/s  ({vtk:.3f} s)")
     print(f"TetLocator ({threads} threads)     {n_points / ours / 1e6:7.2f} M points/s  ({ours:.3f} s)  "
@@ -126,7 +117,7 @@ def bench_to_canonical(name: str, n_points: int, repeats: int) -> None:
     start = time.perf_counter()
     field.to_canonical(points[:10])  # builds the frame and rest locators
     build = time.perf_counter() - start
-    seconds = best_time(lambda: field.to_canonical(points), repeats)
+    seconds = best_of(lambda: field.to_canonical(points), repeats, warmup=True)
     out = field.to_canonical(points)
     print(f"\n== DeformationField.to_canonical (twisted {name} proxy, {n_points / 1e6:g}M points)")
     print(f"{n_points / seconds / 1e6:.2f} M points/s ({seconds:.3f} s); locators built in {build:.2f} s; "

@@ -9,7 +9,8 @@ Scene: a capsule (subdivided so its surface can bend) with the generator's textu
 2. Cost of ray bending (anchor: the unedited render of the same field, camera and samples per ray): edited time /
    unedited time, target ≤ 1.25×, for the mesh field, for the ``nerf`` backend's plain dense grid (density +
    RGB, 64³, occupancy grid 32³) filled from the mesh (a stand-in for a trained field: opaque inside, empty
-   outside) and for the ``neus`` backend's SDF grid filled with the mesh's signed distance. The one-time point-locator builds of a frame are reported separately.
+   outside) and for the ``neus`` backend's SDF grid filled with the mesh's signed distance. The one-time
+   point-locator builds of a frame are reported separately.
 
 Usage: ``python bench/bench_render.py [--quick] [--threads N] [--repeats N]`` (quick: 64×64, no supersampling, one
 camera). Times are wall clock and process CPU time (best of the repeats, unedited and edited interleaved); the ratio
@@ -40,10 +41,12 @@ from nerfedit_plugin.fields.mesh_field import MeshField  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField  # noqa: E402
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField  # noqa: E402
 from nerfedit_plugin.lift import Lift  # noqa: E402
+from nerfedit_plugin.metrics import psnr, ssim  # noqa: E402
 from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.proxy import ProxyConfig, cached_proxy  # noqa: E402
 from nerfedit_plugin.renderer import RenderConfig, render_image  # noqa: E402
 from nerfedit_plugin.synthetic import bend, colorize, render_mesh  # noqa: E402
+from timing import timed  # noqa: E402
 
 TARGET_PSNR = 35.0
 TARGET_RATIO = 1.25
@@ -95,22 +98,12 @@ def sdf_field(mesh: SurfaceMesh, box: torch.Tensor) -> NeusField:
     return field
 
 
-def timed(fn) -> tuple[float, object]:
-    start = time.perf_counter()
-    result = fn()
-    return time.perf_counter() - start, result
-
-
 def clocked(fn) -> tuple[float, float]:
     """``(wall, process CPU)`` seconds of ``fn()``; with one torch thread the CPU time hardly depends on what else
     runs on the machine."""
     wall, cpu = time.perf_counter(), time.process_time()
     fn()
     return time.perf_counter() - wall, time.process_time() - cpu
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(-10 * math.log10(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
 
 
 def main() -> None:
@@ -136,16 +129,13 @@ def main() -> None:
     lifted = {method: Lift(proxy, mesh, method)(bent[None])[0] for method in METHODS}
     deformation = DeformationField(proxy.vertices, proxy.tets, np.concatenate([lifted[m] for m in METHODS]))
 
-    from skimage.metrics import structural_similarity
-
     print("\n1. mesh field through bent rays vs the deformed mesh (PSNR dB / SSIM, per camera)")
     for frame, method in enumerate(METHODS):
         scores = []
         for i in range(n_cams):
             image = render_image(field, cams, i, config, deformation=deformation, frame=frame, supersample=supersample)
             image = image.numpy()
-            ssim = structural_similarity(image, truth[i], channel_axis=-1, data_range=1.0)
-            scores.append(f"{psnr(image, truth[i]):6.2f} / {ssim:.4f}")
+            scores.append(f"{psnr(image, truth[i]):6.2f} / {ssim(image, truth[i]):.4f}")
         print(f"   {method:14s} " + "   ".join(scores))
 
     print(f"\n2. edited vs unedited render time ({config.n_samples} samples per ray, camera 0)")

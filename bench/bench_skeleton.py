@@ -16,7 +16,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -30,19 +29,10 @@ from deformers.skeleton import Skeleton  # noqa: E402
 from deformers.skinning import Binding, normalize_weights, skin  # noqa: E402
 from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.samples import sample_mesh_path  # noqa: E402
+from timing import best_of  # noqa: E402
 
 TARGET_WEIGHTS_S = 2.0
 TARGET_POSE_MS = 20.0
-
-
-def best_of(fn, repeat: int) -> float:
-    """Smallest wall time of ``repeat`` calls (seconds)."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def anchor_heat(vertices: np.ndarray, faces: np.ndarray, bones: int) -> None:
