@@ -25,10 +25,11 @@ BLOCK = 4096
 
 
 @njit(cache=True)
-def _codes(x, scale, offset, mask, side, codes):
-    """``codes[m]`` = the near-grid bits of point ``x[m]`` (``deformation_field._near``; NaN: cell 0, whose only
-    tets are none). The cell coordinate ``clamp(x scale + offset, 0, side − 1)`` may round differently from torch's
-    fused multiply-add, by far less than the grid's 10⁻³-cell padding."""
+def _codes(x, scale, origin, mask, side, codes):
+    """``codes[m]`` = the near-grid bits of point ``x[m]`` (``deformation_field._near``; a NaN coordinate counts as
+    cell 0 along its axis, and no tet accepts such a point). The cell coordinate ``clamp((x − origin) scale + 1, 0,
+    side − 1)`` is the torch path's up to the rounding of the last addition (done in float64 here), far less than
+    the grid's 10⁻³-cell padding."""
     flat = x.ravel()
     zero = scale[0] - scale[0]
     top = zero + (side - 1)
@@ -37,7 +38,7 @@ def _codes(x, scale, offset, mask, side, codes):
     for m in range(len(codes)):
         index = np.int32(0)
         for i in range(3):
-            u = flat[3 * m + i] * scale[i] + offset[i]
+            u = (flat[3 * m + i] - origin[i]) * scale[i] + 1.0
             u = u if u > zero else zero
             index = index * stride + np.int32(u if u < top else top)
         cell[m] = index
@@ -56,7 +57,7 @@ def _deep_in(a, t, x, y, z, final):
 
 
 @njit(cache=True, parallel=True)
-def bend_points(x, scale, offset, mask, side, deformed, rest, rest_rows, rounds, copy, points, tet, empty):
+def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, rounds, copy, points, tet, empty):
     """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'; written there only with ``copy``, so
     ``points`` may be ``x``), ``tet`` = deformed tet (-1 outside T'; not written if of length 0), ``empty`` =
     outside T' but inside T (certain in cells with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``:
@@ -67,7 +68,7 @@ def bend_points(x, scale, offset, mask, side, deformed, rest, rest_rows, rounds,
     for block in prange((n + BLOCK - 1) // BLOCK):
         first, stop = block * BLOCK, min(n, (block + 1) * BLOCK)
         codes = np.zeros(BLOCK, dtype=np.uint8)
-        _codes(x[first:stop], scale, offset, mask, side, codes[:stop - first])
+        _codes(x[first:stop], scale, origin, mask, side, codes[:stop - first])
         if copy:
             points[first:stop] = x[first:stop]
         if with_tet:

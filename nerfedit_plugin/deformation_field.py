@@ -93,9 +93,11 @@ class _Frame(NamedTuple):
 
 
 def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(scale (3,), offset (3,), mask ((C+2)³,) uint8)``, ``C = NEAR_CELLS``: cell coordinates ``u = x scale +
-    offset`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells of
-    their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Bit 1 of a cell: a box
+    """``(scale (3,), origin (3,), mask ((C+2)³,) uint8)``, ``C = NEAR_CELLS``: cell coordinates ``u = (x − origin)
+    scale + 1`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells
+    of their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Subtracting the
+    origin first keeps the rounding error of ``u`` below ``|u| 2⁻²³`` cells (~10⁻⁵, far inside the 10⁻³-cell
+    padding) wherever the grid lies; ``x scale + offset`` cancels, with an error of ``|x| scale 2⁻²⁴`` cells. Bit 1 of a cell: a box
     of T' (``deformed``), padded by 10⁻³ cell, touches it and a tet of T' may reach it
     (:meth:`TetLocator.reach_cells`); bit 2: the same for T; bit 4: every point of the cell is inside T
     (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T)."""
@@ -105,10 +107,10 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     mask = torch.zeros(side**3, dtype=torch.uint8, device=device)
     if len(lo) == 0:
         return torch.ones(3, dtype=dtype, device=device), torch.zeros(3, dtype=dtype, device=device), mask
-    origin, extent = lo.amin(0), (hi.amax(0) - lo.amin(0)).clamp_min(1e-12)
+    origin, extent = lo.amin(0).to(dtype), (hi.amax(0) - lo.amin(0)).clamp_min(1e-12)
     scale = (NEAR_CELLS * (1 - 1e-6) / extent).to(dtype)
-    offset = (1.0 - origin * scale.to(torch.float64)).to(dtype)
-    scale64, offset64 = scale.to(torch.float64), offset.to(torch.float64)  # the values points are mapped with
+    # u = x scale64 + offset64 in float64: the map the points take, up to their rounding error
+    scale64, offset64 = scale.to(torch.float64), 1.0 - origin.to(torch.float64) * scale.to(torch.float64)
     strides = torch.tensor([side * side, side, 1], device=device)
     for bit, locator, (box_lo, box_hi) in zip((1, 2), (deformed, rest), boxes):
         first = (box_lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
@@ -118,17 +120,18 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
         marked[(ijk * strides).sum(1)] = True
         mask |= (marked & locator.reach_cells(scale64, offset64, side)).to(torch.uint8) * bit
     mask |= rest.covered_cells(scale64, offset64, side).to(torch.uint8) * 4
-    return scale, offset, mask
+    return scale, origin, mask
 
 
 def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
     """``(M,)`` uint8: the bits of the points' cells in :func:`_near_grid` (NaN points: 0). One coordinate column
-    at a time: ``floor(clamp(x scale + offset, 0, C+1))`` times the cell stride, summed (ids < 2²⁴: exact)."""
-    scale, offset, mask = grid
+    at a time: ``floor(clamp((x − origin) scale + 1, 0, C+1))`` times the cell stride, summed (ids < 2²⁴:
+    exact)."""
+    scale, origin, mask = grid
     side = NEAR_CELLS + 2
     cell = None
     for i, stride in enumerate((side * side, side, 1)):
-        u = torch.addcmul(offset[i], x[:, i], scale[i]).clamp_(0.0, side - 1.0).floor_()
+        u = (x[:, i] - origin[i]).mul_(scale[i]).add_(1.0).clamp_(0.0, side - 1.0).floor_()
         cell = u.mul_(stride) if cell is None else cell.add_(u, alpha=stride)
     return mask.index_select(0, torch.nan_to_num_(cell, nan=0.0).to(torch.int64))
 
@@ -218,9 +221,9 @@ class DeformationField:
 
         x = x.contiguous()
         tet, empty = torch.empty(len(x) if tets else 0, dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
-        scale, offset, mask = (t.numpy() for t in mapping.near)
+        scale, origin, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
-        launch(bend_points, x.numpy(), scale, offset, mask, NEAR_CELLS + 2, mapping.locator.arrays, rest.arrays,
+        launch(bend_points, x.numpy(), scale, origin, mask, NEAR_CELLS + 2, mapping.locator.arrays, rest.arrays,
                mapping.rest_rows.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(), out.numpy(), tet.numpy(),
                empty.numpy())
         return tet, empty

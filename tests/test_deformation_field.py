@@ -164,6 +164,17 @@ def test_bend_of_inverted_overlapping_tets_is_point_location(proxy, kernel):
     assert_bend_is_point_location(field, v, folded(v), tets, seed=8)
 
 
+@pytest.mark.parametrize("kernel", ["numba", "torch"])
+def test_bend_of_a_small_proxy_far_from_the_origin_is_point_location(proxy, kernel):
+    """The near grid's cell coordinates are taken relative to its origin: for the proxy shrunk to 1 % and moved
+    to 1000, ``x scale + offset`` would cancel and lose ``|x| scale 2⁻²⁴`` cells (~0.2), far beyond the grid's
+    10⁻³-cell padding; points near faces would then be declared outside T'."""
+    v = (proxy.vertices - proxy.vertices.mean(0)) * 0.01 + 1000.0
+    deformed = v + np.array([0.0, 0.0, 0.35 * np.ptp(v[:, 2])])
+    field = DeformationField(v, proxy.tets, deformed[None], kernel=kernel)
+    assert_bend_is_point_location(field, v, deformed, proxy.tets, seed=9)
+
+
 @pytest.fixture(scope="module", params=["numba", "torch"])
 def lifted_field(request, proxy, lifted) -> tuple[np.ndarray, DeformationField]:
     """``lifted`` with each bending kernel (the compiled CPU pass and the vectorised torch path)."""
@@ -202,6 +213,12 @@ def test_bend_kernels_agree_and_bend_in_place(proxy, lifted):
         assert field.bend(x, out=wide).points is wide and torch.equal(wide, a.points.double())
     with pytest.raises(ValueError, match="out must have shape"):
         compiled.bend(x, out=torch.zeros(3, 3))
+    inside = torch.nonzero(a.tet >= 0).squeeze(1)
+    for n in (1, 7, 9, 4097):  # partial 8-point words and blocks, ending with a point inside T'
+        pick = torch.cat([torch.arange(n - 1), inside[-1:]])
+        part = compiled.bend(x[pick])
+        assert torch.equal(part.points, a.points[pick]) and torch.equal(part.tet, a.tet[pick])
+        assert torch.equal(part.empty, a.empty[pick])
 
 
 def test_save_load_round_trip(tmp_path, proxy):
