@@ -357,7 +357,7 @@ def demo(argv: list[str]) -> None:
     with console.status("demo") as status:
         summary = run_demo(args.out, preset=args.preset, field=args.field, overwrite=args.overwrite,
                            progress=False, on_stage=lambda stage: status.update(f"[bold]demo: {stage}[/]"))
-    table = Table(title=f"nerfedit demo → {summary['out']}")
+    table = Table(title="nerfedit demo")
     table.add_column("stage")
     table.add_column("seconds", justify="right")
     for stage, seconds in summary["seconds"].items():
@@ -368,11 +368,12 @@ def demo(argv: list[str]) -> None:
     Console().print(f"trained {args.field} field on the test views: PSNR {before['psnr']:.2f} dB, SSIM {before['ssim']:.3f}; "
                     f"edited renders vs the deformed source mesh: PSNR {after['psnr']:.2f} dB, SSIM {after['ssim']:.3f}; "
                     f"lift residual {frame['residual_max']:.1e} × bbox, {frame['inverted_tets']} inverted tets")
+    Console().print(f"outputs in {summary['out']}", soft_wrap=True)
     files = Table(title="files")
     files.add_column("what")
-    files.add_column("where")
+    files.add_column("where", overflow="fold")
     for what, where in summary["files"].items():
-        files.add_row(what, str(Path(summary["out"]) / where))
+        files.add_row(what, str(where))
     Console().print(files)
 
 
