@@ -92,7 +92,7 @@ def test_occupancy_band_is_exact_and_conservative():
     with torch.no_grad():
         field.grid.table[:, 0] += torch.randn(33**3, generator=torch.Generator().manual_seed(2))
     field.update_occupancy()
-    band = field.config.occupancy_band / float(field.sharpness())
+    band = field.config.occupancy_band / float(field.sharpness().detach())
     assert 0.05 < field.occupancy.fraction < 0.95
     points = random_points(200_000, seed=3)
     near = sdf(field, points).abs() <= band
@@ -145,12 +145,12 @@ def test_training_improves_test_psnr_and_checkpoint_round_trips(tiny_scene, tmp_
     config.train.max_steps, config.train.batch_rays = 40, 512
     config.upsample_steps, config.resolution = (20,), 64
     field = config.setup(scene_bbox=train.scene_bbox)
-    sharpness = float(field.sharpness())
+    sharpness = float(field.sharpness().detach())
     log = field.fit(train, eval_dataset=test)
     (t0, before), (t1, after) = log["eval"][0], log["eval"][-1]
     assert t0 == 0.0 and t1 > 0 and log["steps"] == 40
     assert after > before + 2.0, log["eval"]
-    assert field.grid.resolution == 64 and float(field.sharpness()) > sharpness  # refined; surface sharpened
+    assert field.grid.resolution == 64 and float(field.sharpness().detach()) > sharpness  # refined; surface sharpened
     field.save(tmp_path / "field.pt")
     loaded = load_field(tmp_path / "field.pt", backend="neus")
     assert isinstance(loaded, NeusField) and loaded.grid.resolution == 64
