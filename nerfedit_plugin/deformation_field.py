@@ -47,6 +47,9 @@ KEYS = ("rest_vertices", "tets", "deformed_vertices")
 NEAR_CELLS = 96
 """Cells per axis of the per-frame grid that tells which points need point location."""
 
+MOVED_TOLERANCE = 1e-6
+"""Displacements up to this fraction of the rest proxy's extent count as none (:meth:`DeformationField.moved_bounds`)."""
+
 
 class BentPoints(NamedTuple):
     points: torch.Tensor  # (M,3) x_c (x itself where not inside T')
@@ -148,6 +151,7 @@ class DeformationField:
             raise ValueError(f"kernel must be 'auto', 'torch' or (on the CPU) 'numba', got {kernel!r}")
         self.kernel = kernel  # TetLocator's: "auto" (compiled on the CPU), "numba" or "torch"
         self._frames: dict[int, _Frame] = {}
+        self._moved: dict[int, np.ndarray | None] = {}
         self._rest_locator: TetLocator | None = None
 
     @property
@@ -157,6 +161,21 @@ class DeformationField:
     def offsets(self, frame: int) -> np.ndarray:
         """``rest - deformed[frame]`` (N,3): the paper's barycentric offsets."""
         return self.rest_vertices - self.deformed_vertices[self._check_frame(frame)]
+
+    def moved_bounds(self, frame: int = 0) -> np.ndarray | None:
+        """``(2,3)`` bounding box of the deformed corners of the tets of ``frame`` that have a corner displaced by
+        more than ``MOVED_TOLERANCE`` × the rest proxy's extent; None if no tet moved. Every other point of space
+        maps to itself (within that tolerance) or is vacated, so content appears elsewhere than at its rest place
+        only inside this box (the renderer's sampling box adds it to the scene box; an identity edit adds
+        nothing)."""
+        frame = self._check_frame(frame)
+        if frame not in self._moved:
+            rest, deformed = self.rest_vertices, self.deformed_vertices[frame]
+            extent = float(np.ptp(rest, axis=0).max()) if len(rest) else 0.0
+            displaced = np.linalg.norm(deformed - rest, axis=1) > MOVED_TOLERANCE * extent
+            corners = deformed[self.tets[displaced[self.tets].any(1)]].reshape(-1, 3)
+            self._moved[frame] = np.stack([corners.min(0), corners.max(0)]) if len(corners) else None
+        return self._moved[frame]
 
     def _check_frame(self, frame: int) -> int:
         if not 0 <= frame < self.n_frames:

@@ -1,8 +1,8 @@
 """The one renderer of every field backend, with optional ray bending through a DeformationField.
 
 Sampling. Each ray (unit direction) is clipped to an axis-aligned box: the field's ``scene_bbox`` united with the
-bounding box of the deformed proxy of the frame (so parts moved out of the scene box are still sampled), unless
-per-ray ``bounds = (near, far)`` are given. ``[near, far]`` is cut into ``n_samples`` bins of equal width ``δ``; a
+bounding box of the deformed tets the frame moves (so parts moved out of the scene box are still sampled; an
+identity edit keeps the scene box), unless per-ray ``bounds = (near, far)`` are given. ``[near, far]`` is cut into ``n_samples`` bins of equal width ``δ``; a
 sample sits at each bin centre, or uniformly at random in its bin when ``stratified`` (training).
 
 Bending (DESIGN.md §3). With a DeformationField, a sample ``x`` (deformed space) maps to ``x_c = to_canonical(x)``:
@@ -95,12 +95,15 @@ class _Kept(NamedTuple):
 
 
 def sampling_box(field: Field, deformation=None, frame: int = 0) -> torch.Tensor:
-    """The box ``(2,3)`` rays are clipped to: ``scene_bbox`` ∪ the bounding box of the deformed proxy of ``frame``."""
+    """The box ``(2,3)`` rays are clipped to: ``scene_bbox`` ∪ the box of the tets that ``frame`` moves
+    (:meth:`DeformationField.moved_bounds`; elsewhere the scene is where it was, so an identity edit samples every
+    ray exactly as the unedited render does)."""
     box = field.scene_bbox
-    if deformation is None:
+    bounds = None if deformation is None else deformation.moved_bounds(frame)
+    if bounds is None:
         return box
-    moved = torch.as_tensor(deformation.deformed_vertices[frame], dtype=box.dtype, device=box.device)
-    return torch.stack([torch.minimum(box[0], moved.amin(0)), torch.maximum(box[1], moved.amax(0))])
+    moved = torch.as_tensor(bounds, dtype=box.dtype, device=box.device)
+    return torch.stack([torch.minimum(box[0], moved[0]), torch.maximum(box[1], moved[1])])
 
 
 def ray_box(origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

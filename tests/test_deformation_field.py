@@ -221,6 +221,24 @@ def test_bend_kernels_agree_and_bend_in_place(proxy, lifted):
         assert torch.equal(part.empty, a.empty[pick])
 
 
+def test_moved_bounds_box_the_tets_a_frame_moves(proxy):
+    """None for the identity (and for jitter below the tolerance), the whole deformed proxy for a rigid motion, and
+    for a local edit the box of the deformed corners of exactly the tets with a displaced corner (brute force)."""
+    rest, tets = proxy.vertices, proxy.tets
+    extent = np.ptp(rest, axis=0).max()
+    jitter = rest + np.random.default_rng(0).uniform(-1e-7, 1e-7, rest.shape) * extent
+    rigid = rest @ Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_matrix().T + 0.5
+    local = rest.copy()
+    top = rest[:, 2] > np.quantile(rest[:, 2], 0.9)
+    local[top] += [0.3, 0.0, 0.2]
+    field = DeformationField(rest, tets, np.stack([rest, jitter, rigid, local]))
+    assert field.moved_bounds(0) is None and field.moved_bounds(1) is None
+    np.testing.assert_array_equal(field.moved_bounds(2), [rigid.min(0), rigid.max(0)])
+    corners = np.concatenate([local[tet] for tet in tets if top[tet].any()])
+    np.testing.assert_array_equal(field.moved_bounds(3), [corners.min(0), corners.max(0)])
+    assert (field.moved_bounds(3)[0] > local.min(0)).any()  # a local edit does not take the whole proxy
+
+
 def test_save_load_round_trip(tmp_path, proxy):
     frames = np.stack([proxy.vertices, proxy.vertices * 1.1])
     field = DeformationField(proxy.vertices, proxy.tets, frames)

@@ -233,6 +233,22 @@ def test_identity_deformation_renders_the_unedited_image(kind, fields, deformati
         torch.testing.assert_close(edited, plain, atol=1e-4 if kind == "mesh" else 1e-5, rtol=0)
 
 
+def test_identity_deformation_of_a_proxy_larger_than_the_scene_box_keeps_the_samples(capsule, deformation):
+    """A proxy reaches beyond a tight scene box (the usual case: the cage is offset from the surface); unmoved tets
+    add nothing to the sampling box, so every ray is sampled as without the deformation (a grown box would shift
+    every sample and change silhouettes)."""
+    lo, hi = capsule.vertices.min(0), capsule.vertices.max(0)
+    tight = torch.tensor(np.stack([lo - 0.01, hi + 0.01])).float()
+    proxy = deformation.rest_vertices
+    assert (proxy.min(0) < tight[0].numpy()).all() and (proxy.max(0) > tight[1].numpy()).all()
+    field, config, cams = BallField(tight), RenderConfig(n_samples=48), cameras(1, size=24)
+    torch.testing.assert_close(sampling_box(field, deformation, IDENTITY_FRAME), tight, atol=0, rtol=0)
+    plain = render_image(field, cams, 0, config)
+    edited = render_image(field, cams, 0, config, deformation=deformation, frame=IDENTITY_FRAME)
+    assert plain.std() > 0.05
+    torch.testing.assert_close(edited, plain, atol=1e-5, rtol=0)
+
+
 @pytest.mark.parametrize("kind, tolerance", [("density", 1e-4), ("sdf", 5e-3), ("mesh", 1e-4)])
 def test_rigid_deformation_equals_moving_the_camera_inversely(kind, tolerance, fields, box, deformation):
     """Proxy moved by G: x ↦ R x + t. Rays of a camera c2w through the bent field = rays of the camera G⁻¹·c2w
