@@ -57,12 +57,13 @@ def _deep_in(a, t, x, y, z, final):
 
 
 @njit(cache=True, parallel=True)
-def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, rounds, copy, points, tet, empty):
+def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, still, rounds, copy, points, tet, empty):
     """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'; written there only with ``copy``, so
     ``points`` may be ``x``), ``tet`` = deformed tet (-1 outside T'; not written if of length 0), ``empty`` =
     outside T' but inside T (certain in cells with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``:
-    rest corner ``r0`` then the rest edge matrix ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``. Skipping the
-    writes a caller does not need keeps the pass over memory small."""
+    rest corner ``r0`` then the rest edge matrix ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``, or ``x_c = x`` in
+    tets with ``still[t]`` (``DeformationField.still_tets``: the identity, without rounding). Skipping the writes a caller does not
+    need keeps the pass over memory small."""
     with_tet = tet.shape[0] > 0
     n = x.shape[0]
     for block in prange((n + BLOCK - 1) // BLOCK):
@@ -96,7 +97,7 @@ def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, rounds,
                 if t >= 0:
                     if with_tet:
                         tet[m] = t
-                    for i in range(3):
+                    for i in range(3 if not still[t] else 0):
                         points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1 + rest_rows[t, 4 + 3 * i] * b2
                                         + rest_rows[t, 5 + 3 * i] * b3)
                 elif bits & 4:

@@ -4,6 +4,10 @@
 tet ``t`` with barycentrics ``b`` maps to ``x_c = Σ b_i r_i`` (``r_i`` the rest corners), which equals the
 per-tet affine map ``A_t x + c_t`` and the paper's ``x + Σ b_i (r_i - d_i)``; its Jacobian is
 ``A_t = [r1-r0, r2-r0, r3-r0] [d1-d0, d2-d0, d3-d0]^-1``, constant per tet (precomputed in float64, then cast).
+A *still* tet (no corner displaced by more than ``MOVED_TOLERANCE`` of the rest proxy's extent; solvers leave
+~10⁻¹⁶ of noise on pinned vertices) maps by the identity, applied as such: ``x_c = x`` and ``A_t = I`` exactly
+(``Σ b_i r_i`` would add float rounding, enough to move a sample across a grid cell face), so an identity edit, and
+the still part of any edit, changes no sample.
 
 Regions: inside T' -> mapped; outside T' but inside the rest proxy T -> ``empty`` (the space the object left;
 the renderer treats it as empty); outside both -> identity (``x_c = x``, ``J = I``).
@@ -48,7 +52,7 @@ NEAR_CELLS = 96
 """Cells per axis of the per-frame grid that tells which points need point location."""
 
 MOVED_TOLERANCE = 1e-6
-"""Displacements up to this fraction of the rest proxy's extent count as none (:meth:`DeformationField.moved_bounds`)."""
+"""Displacements up to this fraction of the rest proxy's extent count as none (still tets)."""
 
 
 class BentPoints(NamedTuple):
@@ -91,6 +95,7 @@ def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray,
 class _Frame(NamedTuple):
     locator: TetLocator
     rest_rows: torch.Tensor  # (K,12): r0, then R = [r1-r0, r2-r0, r3-r0] (rest edges as columns) row-major
+    still: torch.Tensor  # (K,) bool: no corner of the tet moved (the map is the identity there)
     jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
 
@@ -151,6 +156,7 @@ class DeformationField:
             raise ValueError(f"kernel must be 'auto', 'torch' or (on the CPU) 'numba', got {kernel!r}")
         self.kernel = kernel  # TetLocator's: "auto" (compiled on the CPU), "numba" or "torch"
         self._frames: dict[int, _Frame] = {}
+        self._still: dict[int, np.ndarray] = {}
         self._moved: dict[int, np.ndarray | None] = {}
         self._rest_locator: TetLocator | None = None
 
@@ -162,18 +168,25 @@ class DeformationField:
         """``rest - deformed[frame]`` (N,3): the paper's barycentric offsets."""
         return self.rest_vertices - self.deformed_vertices[self._check_frame(frame)]
 
+    def still_tets(self, frame: int = 0) -> np.ndarray:
+        """``(K,)`` bool: no corner of the tet is displaced in ``frame`` by more than ``MOVED_TOLERANCE`` × the rest
+        proxy's extent (the map is the identity there)."""
+        frame = self._check_frame(frame)
+        if frame not in self._still:
+            rest = self.rest_vertices
+            extent = float(np.ptp(rest, axis=0).max()) if len(rest) else 0.0
+            displaced = np.linalg.norm(self.deformed_vertices[frame] - rest, axis=1) > MOVED_TOLERANCE * extent
+            self._still[frame] = ~displaced[self.tets].any(1)
+        return self._still[frame]
+
     def moved_bounds(self, frame: int = 0) -> np.ndarray | None:
-        """``(2,3)`` bounding box of the deformed corners of the tets of ``frame`` that have a corner displaced by
-        more than ``MOVED_TOLERANCE`` × the rest proxy's extent; None if no tet moved. Every other point of space
-        maps to itself (within that tolerance) or is vacated, so content appears elsewhere than at its rest place
-        only inside this box (the renderer's sampling box adds it to the scene box; an identity edit adds
+        """``(2,3)`` bounding box of the deformed corners of the tets of ``frame`` that are not still; None if all
+        are. Every other point of space maps to itself or is vacated, so content appears elsewhere than at its rest
+        place only inside this box (the renderer's sampling box adds it to the scene box; an identity edit adds
         nothing)."""
         frame = self._check_frame(frame)
         if frame not in self._moved:
-            rest, deformed = self.rest_vertices, self.deformed_vertices[frame]
-            extent = float(np.ptp(rest, axis=0).max()) if len(rest) else 0.0
-            displaced = np.linalg.norm(deformed - rest, axis=1) > MOVED_TOLERANCE * extent
-            corners = deformed[self.tets[displaced[self.tets].any(1)]].reshape(-1, 3)
+            corners = self.deformed_vertices[frame][self.tets[~self.still_tets(frame)]].reshape(-1, 3)
             self._moved[frame] = np.stack([corners.min(0), corners.max(0)]) if len(corners) else None
         return self._moved[frame]
 
@@ -189,9 +202,10 @@ class DeformationField:
             rest = torch.as_tensor(self.rest_vertices, device=self.device)[tets]
             deformed = torch.as_tensor(self.deformed_vertices[frame], device=self.device)
             corners = deformed[tets]
+            still = torch.as_tensor(self.still_tets(frame), device=self.device)
             edges_rest = (rest[:, 1:] - rest[:, :1]).transpose(1, 2)  # (K,3,3) columns
             edges = (corners[:, 1:] - corners[:, :1]).transpose(1, 2)
-            ok = torch.linalg.det(edges) != 0
+            ok = (torch.linalg.det(edges) != 0) & ~still
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
             locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel)
@@ -199,6 +213,7 @@ class DeformationField:
             self._frames[frame] = _Frame(
                 locator,
                 torch.cat([rest[:, 0], edges_rest.reshape(-1, 9)], 1).to(self.dtype),
+                still,
                 torch.cat([torch.where(ok[:, None, None], jacobian, eye), eye[None]]).to(self.dtype),
                 near,
             )
@@ -243,7 +258,8 @@ class DeformationField:
         scale, origin, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
         launch(bend_points, x.numpy(), scale, origin, mask, NEAR_CELLS + 2, mapping.locator.arrays, rest.arrays,
-               mapping.rest_rows.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(), out.numpy(), tet.numpy(),
+               mapping.rest_rows.numpy(), mapping.still.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(),
+               out.numpy(), tet.numpy(),
                empty.numpy())
         return tet, empty
 
@@ -252,14 +268,14 @@ class DeformationField:
         code = _near(mapping.near, x)
         near = torch.nonzero(code.bitwise_and(1)).squeeze(1)
         found, bary = mapping.locator.locate(x.index_select(0, near))
-        inside = found >= 0
-        idx = torch.nonzero(inside).squeeze(1)
+        inside = torch.nonzero(found >= 0).squeeze(1)
+        code.index_fill_(0, near.index_select(0, inside), 0)  # points in T' are not empty
+        idx = inside[~mapping.still.index_select(0, found.index_select(0, inside))]  # still tets: x_c = x
         r = mapping.rest_rows.index_select(0, found.index_select(0, idx)).t()  # (12,P)
         b = bary.t().index_select(1, idx)  # (4,P)
         mapped = [r[i] + r[3 + 3 * i] * b[1] + r[4 + 3 * i] * b[2] + r[5 + 3 * i] * b[3]
                   for i in range(3)]  # r0 + R (b1, b2, b3) = Σ b_i r_i
         rows = near.index_select(0, idx)
-        code.index_fill_(0, rows, 0)  # mapped points are not empty
         empty = code.bitwise_and(4).to(torch.bool)
         unsure = torch.nonzero(code.bitwise_and_(6).eq_(2)).squeeze(1)
         empty.index_fill_(0, unsure[self._rest().member(x.index_select(0, unsure)) >= 0], True)
