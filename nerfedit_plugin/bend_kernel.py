@@ -57,24 +57,20 @@ def _deep_in(a, t, x, y, z, final):
 
 
 @njit(cache=True, parallel=True)
-def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, still, rounds, copy, points, tet, empty):
-    """Map ``x (M,3)``: ``points`` = canonical position (``x`` outside T'; written there only with ``copy``, so
-    ``points`` may be ``x``), ``tet`` = deformed tet (-1 outside T'; not written if of length 0), ``empty`` =
-    outside T' but inside T (certain in cells with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``:
-    rest corner ``r0`` then the rest edge matrix ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``, or ``x_c = x`` in
-    tets with ``still[t]`` (``DeformationField.still_tets``: the identity, without rounding). Skipping the writes a caller does not
-    need keeps the pass over memory small."""
+def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, still, rounds, points, tet, empty):
+    """Map ``x (M,3)`` into arrays the caller initialised (whole-array fills and copies are cheap in torch; the
+    same slice assignments here cost three times the compile time): ``points`` = canonical position, holding ``x``
+    on entry (it may be ``x``) and written only for points in T' outside still tets; ``tet`` = deformed tet, -1 on
+    entry (-1 outside T'; not written if of length 0); ``empty`` = False on entry, set outside T' but inside T
+    (certain in cells with bit 4, tested in the others with bit 2). ``rest_rows (K,12)``: rest corner ``r0`` then
+    the rest edge matrix ``R`` row-major; ``x_c = r0 + R (b1, b2, b3)``, or ``x_c = x`` in tets with ``still[t]``
+    (``DeformationField.still_tets``: the identity, without rounding)."""
     with_tet = tet.shape[0] > 0
     n = x.shape[0]
     for block in prange((n + BLOCK - 1) // BLOCK):
         first, stop = block * BLOCK, min(n, (block + 1) * BLOCK)
         codes = np.zeros(BLOCK, dtype=np.uint8)
         _codes(x[first:stop], scale, origin, mask, side, codes[:stop - first])
-        if copy:
-            points[first:stop] = x[first:stop]
-        if with_tet:
-            tet[first:stop] = -1
-        empty[first:stop] = False
         words = codes.view(np.uint64)
         last, last_rest = -1, -1
         for word in range(BLOCK // 8):

@@ -254,13 +254,14 @@ class DeformationField:
         from .locate_kernel import launch
 
         x = x.contiguous()
-        tet, empty = torch.empty(len(x) if tets else 0, dtype=torch.int64), torch.empty(len(x), dtype=torch.bool)
+        tet = torch.full((len(x) if tets else 0,), -1, dtype=torch.int64)
+        empty = torch.zeros(len(x), dtype=torch.bool)
+        if out.data_ptr() != x.data_ptr():
+            out.copy_(x)
         scale, origin, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
         launch(bend_points, x.numpy(), scale, origin, mask, NEAR_CELLS + 2, mapping.locator.arrays, rest.arrays,
-               mapping.rest_rows.numpy(), mapping.still.numpy(), rest.rounds, out.data_ptr() != x.data_ptr(),
-               out.numpy(), tet.numpy(),
-               empty.numpy())
+               mapping.rest_rows.numpy(), mapping.still.numpy(), rest.rounds, out.numpy(), tet.numpy(), empty.numpy())
         return tet, empty
 
     def _bend_torch(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
