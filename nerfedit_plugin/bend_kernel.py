@@ -93,9 +93,10 @@ def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, still, 
                 if t >= 0:
                     if with_tet:
                         tet[m] = t
-                    for i in range(3 if not still[t] else 0):
-                        points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1 + rest_rows[t, 4 + 3 * i] * b2
-                                        + rest_rows[t, 5 + 3 * i] * b3)
+                    if not still[t]:  # a still tet leaves x where it is
+                        for i in range(3):
+                            points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1
+                                            + rest_rows[t, 4 + 3 * i] * b2 + rest_rows[t, 5 + 3 * i] * b3)
                 elif bits & 4:
                     empty[m] = True
                 elif bits & 2:

@@ -95,7 +95,7 @@ def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray,
 class _Frame(NamedTuple):
     locator: TetLocator
     rest_rows: torch.Tensor  # (K,12): r0, then R = [r1-r0, r2-r0, r3-r0] (rest edges as columns) row-major
-    still: torch.Tensor  # (K,) bool: no corner of the tet moved (the map is the identity there)
+    still: torch.Tensor  # (K,) bool: DeformationField.still_tets (the map is the identity there)
     jacobian: torch.Tensor  # (K+1,3,3): A_t, then the identity (row K, for points outside T')
     near: tuple[torch.Tensor, torch.Tensor, torch.Tensor]  # see _near_grid
 
@@ -205,7 +205,7 @@ class DeformationField:
             still = torch.as_tensor(self.still_tets(frame), device=self.device)
             edges_rest = (rest[:, 1:] - rest[:, :1]).transpose(1, 2)  # (K,3,3) columns
             edges = (corners[:, 1:] - corners[:, :1]).transpose(1, 2)
-            ok = (torch.linalg.det(edges) != 0) & ~still
+            ok = (torch.linalg.det(edges) != 0) & ~still  # the others get A_t = I
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
             locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel)

@@ -2,8 +2,9 @@
 
 Sampling. Each ray (unit direction) is clipped to an axis-aligned box: the field's ``scene_bbox`` united with the
 bounding box of the deformed tets the frame moves (so parts moved out of the scene box are still sampled; an
-identity edit keeps the scene box), unless per-ray ``bounds = (near, far)`` are given. ``[near, far]`` is cut into ``n_samples`` bins of equal width ``δ``; a
-sample sits at each bin centre, or uniformly at random in its bin when ``stratified`` (training).
+identity edit keeps the scene box), unless per-ray ``bounds = (near, far)`` are given. ``[near, far]`` is cut into
+``n_samples`` bins of equal width ``δ``; a sample sits at each bin centre, or uniformly at random in its bin when
+``stratified`` (training).
 
 Bending (DESIGN.md §3). With a DeformationField, a sample ``x`` (deformed space) maps to ``x_c = to_canonical(x)``:
 inside the deformed proxy T' it is mapped, in the space the object left (inside T, outside T') it is *empty* (zero
