@@ -22,8 +22,8 @@ import numpy as np
 import pymeshlab
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.arap import ArapSolver
-from nerfedit_plugin.editspec import load_edit_spec
+from nerfedit_plugin.geometry.arap import ArapSolver
+from nerfedit_plugin.edit.spec import load_edit_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 TOLERANCE = 1e-6

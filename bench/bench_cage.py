@@ -25,8 +25,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from deformers.cage import CageConfig, CageDeformer, auto_cage, validate_cage  # noqa: E402
-from nerfedit_plugin.editspec import parse_edit_spec  # noqa: E402
-from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
+from nerfedit_plugin.edit.spec import parse_edit_spec  # noqa: E402
+from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
 from timing import best_of  # noqa: E402
 
 TARGET_BIND_S = 1.0

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nerfedit_plugin.deformation_field import DeformationField
-from nerfedit_plugin.locate import TetLocator, locate_brute_force
-from nerfedit_plugin.proxy import tet_signed_volumes
-from nerfedit_plugin.samples import sample_mesh_path
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.bending.locate import TetLocator, locate_brute_force
+from nerfedit_plugin.edit.proxy import tet_signed_volumes
+from nerfedit_plugin.io.samples import sample_mesh_path
 from timing import best_of
 
 CACHE = Path("/tmp/nerfedit_bench_locate")

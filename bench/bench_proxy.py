@@ -15,9 +15,9 @@ import time
 
 import numpy as np
 
-from nerfedit_plugin.mesh import SurfaceMesh
-from nerfedit_plugin.proxy import ProxyConfig, build_proxy, tet_signed_volumes, tetrahedralize
-from nerfedit_plugin.samples import sample_mesh_path
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.edit.proxy import ProxyConfig, build_proxy, tet_signed_volumes, tetrahedralize
+from nerfedit_plugin.io.samples import sample_mesh_path
 
 
 def quality(vertices: np.ndarray, tets: np.ndarray) -> str:

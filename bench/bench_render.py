@@ -36,17 +36,17 @@ import trimesh
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nerfedit_plugin.cameras import Cameras, look_at  # noqa: E402
-from nerfedit_plugin.deformation_field import DeformationField  # noqa: E402
+from nerfedit_plugin.data.cameras import Cameras, look_at  # noqa: E402
+from nerfedit_plugin.bending.deformation_field import DeformationField  # noqa: E402
 from nerfedit_plugin.fields.mesh_field import MeshField  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField  # noqa: E402
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField  # noqa: E402
-from nerfedit_plugin.lift import Lift  # noqa: E402
-from nerfedit_plugin.metrics import psnr, ssim  # noqa: E402
-from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
-from nerfedit_plugin.proxy import ProxyConfig, cached_proxy  # noqa: E402
-from nerfedit_plugin.renderer import RenderConfig, render_image  # noqa: E402
-from nerfedit_plugin.synthetic import bend, colorize, render_mesh  # noqa: E402
+from nerfedit_plugin.edit.lift import Lift  # noqa: E402
+from nerfedit_plugin.training.metrics import psnr, ssim  # noqa: E402
+from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
+from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy  # noqa: E402
+from nerfedit_plugin.render.renderer import RenderConfig, render_image  # noqa: E402
+from nerfedit_plugin.data.synthetic import bend, colorize, render_mesh  # noqa: E402
 from timing import timed  # noqa: E402
 
 TARGET_PSNR = 35.0

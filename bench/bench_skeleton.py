@@ -27,8 +27,8 @@ sys.path.insert(0, str(ROOT))
 from deformers.heat_weights import bone_heat_weights  # noqa: E402
 from deformers.skeleton import Skeleton  # noqa: E402
 from deformers.skinning import Binding, normalize_weights, skin  # noqa: E402
-from nerfedit_plugin.mesh import SurfaceMesh  # noqa: E402
-from nerfedit_plugin.samples import sample_mesh_path  # noqa: E402
+from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
+from nerfedit_plugin.io.samples import sample_mesh_path  # noqa: E402
 from timing import best_of  # noqa: E402
 
 TARGET_WEIGHTS_S = 2.0

@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from nerfedit_plugin.datasets import load_dataset
+from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.fields.nerf import NerfConfig
 from nerfedit_plugin.fields.neus import NeusConfig
-from nerfedit_plugin.mesh import SurfaceMesh
-from nerfedit_plugin.synthetic import GenerateConfig, generate_dataset
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 
 
 def floor_config() -> NerfConfig:

@@ -13,11 +13,11 @@ from typing import Literal
 
 import numpy as np
 
-from nerfedit_plugin.arap import ArapResult, ArapSolver
-from nerfedit_plugin.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
 @dataclasses.dataclass

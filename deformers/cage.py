@@ -23,10 +23,10 @@ from typing import Literal
 import numpy as np
 import tyro
 
-from nerfedit_plugin.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 from .green import green_coordinates, green_face_terms
 from .mean_value import mean_value_coordinates

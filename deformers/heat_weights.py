@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from nerfedit_plugin.arap import ELEMENT_EDGES, cotangent_weights
+from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, cotangent_weights
 
 #: relative distance within which bones count as equidistant from a vertex
 TIE_TOLERANCE = 1e-6

@@ -11,10 +11,10 @@ import dataclasses
 
 import numpy as np
 
-from nerfedit_plugin.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
 @dataclasses.dataclass

@@ -30,11 +30,11 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.atomic import atomic_path
-from nerfedit_plugin.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.editspec import EditSpec
+from nerfedit_plugin.io.atomic import atomic_path
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 from .bvh import BvhClip, parse_bvh
 from .heat_weights import bone_heat_weights

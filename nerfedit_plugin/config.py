@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .atomic import write_text
+from nerfedit_plugin.io.atomic import write_text
 
 
 @dataclasses.dataclass

@@ -1,6 +1,6 @@
 """``nerfedit demo``: the whole pipeline on the built-in scene, on the CPU, in minutes.
 
-generate (the pymeshlab bunny, vertex-coloured, rendered by :mod:`nerfedit_plugin.synthetic`) → train a field →
+generate (the pymeshlab bunny, vertex-coloured, rendered by :mod:`nerfedit_plugin.data.synthetic`) → train a field →
 extract its mesh (largest connected part) → a built-in ARAP edit (:func:`nod_edit`) → lift into the tet proxy →
 render the test views before and after the edit and a turntable GIF of the edited scene. Everything lands in one
 folder, written atomically; :func:`run_demo` returns each stage's time and two scores: ``before`` — the trained
@@ -22,16 +22,16 @@ from typing import Callable, Literal
 import numpy as np
 import torch
 
-from .atomic import atomic_dir
-from .datasets import load_dataset
-from .deformation_field import DeformationField
-from .edit import Stopwatch, run_edit
-from .metrics import evaluate_folders
-from .mesh import SurfaceMesh
-from .registry import DEFORMERS, FIELDS, discover
-from .run import extract_mesh, train_run
-from .synthetic import GenerateConfig, generate_dataset, render_ground_truth
-from .views import default_render_config, render_views, turntable_cameras, write_gif, write_images
+from nerfedit_plugin.io.atomic import atomic_dir
+from nerfedit_plugin.data.datasets import load_dataset
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.edit.job import Stopwatch, run_edit
+from nerfedit_plugin.training.metrics import evaluate_folders
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover
+from nerfedit_plugin.io.run import extract_mesh, train_run
+from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset, render_ground_truth
+from nerfedit_plugin.render.views import default_render_config, render_views, turntable_cameras, write_gif, write_images
 
 
 @dataclass(frozen=True)

@@ -11,9 +11,9 @@ import dataclasses
 from dataclasses import dataclass, field
 from importlib import metadata
 
-from .deformer import Deformer, DeformerConfig
-from .errors import NerfEditError
-from .field import Field, FieldConfig
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.base import Field, FieldConfig
 
 DEFORMERS = "nerfedit.deformers"
 FIELDS = "nerfedit.fields"

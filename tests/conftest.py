@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
 @pytest.fixture(scope="session")
@@ -22,7 +22,7 @@ def proxy_cache(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def capsule_proxy(capsule, proxy_cache):
-    from nerfedit_plugin.proxy import ProxyConfig, cached_proxy
+    from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy
 
     proxy, _ = cached_proxy(capsule, ProxyConfig(), proxy_cache)
     return proxy
@@ -31,7 +31,7 @@ def capsule_proxy(capsule, proxy_cache):
 @pytest.fixture(scope="session")
 def tiny_scene(tmp_path_factory):
     """A 32×32 Blender dataset of the pymeshlab cow (8 train, 1 val, 2 test views) for training tests."""
-    from nerfedit_plugin.synthetic import GenerateConfig, generate_dataset
+    from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 
     out = tmp_path_factory.mktemp("tiny-scene") / "cow"
     generate_dataset(GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2,

@@ -19,10 +19,10 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from deformers.arap import ArapConfig, ArapDeformer
-from nerfedit_plugin.arap import ELEMENT_EDGES, ArapSolver, cotangent_weights, fit_rotations, fit_rotations_numpy
-from nerfedit_plugin.editspec import load_edit_spec, parse_edit_spec
+from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, ArapSolver, cotangent_weights, fit_rotations, fit_rotations_numpy
+from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 igl = pytest.importorskip("igl")
 

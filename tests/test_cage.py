@@ -9,9 +9,9 @@ import trimesh
 
 from deformers.cage import CageConfig, CageDeformer, auto_cage, enclosure, validate_cage
 from deformers.mean_value import mean_value_coordinates
-from nerfedit_plugin.editspec import parse_edit_spec
+from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.testing import check_deformer, default_edit, default_mesh
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.cameras import Cameras, generate_rays, look_at, sphere_poses
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, look_at, sphere_poses
 
 
 def random_cameras(n=4, width=40, height=30, seed=0) -> Cameras:

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from nerfedit_plugin.cli import main
-from nerfedit_plugin.deformation_field import DeformationField
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 EDIT = {
     "handles": [

@@ -8,7 +8,7 @@ import pytest
 import tyro
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.testing import (
     CHECKS,

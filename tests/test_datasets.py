@@ -10,8 +10,8 @@ import pytest
 import skimage.io
 import torch
 
-from nerfedit_plugin.cameras import Cameras, generate_rays, sphere_poses
-from nerfedit_plugin.datasets import (
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
+from nerfedit_plugin.data.datasets import (
     blender_transforms,
     block_mean,
     estimate_scene_bbox,

@@ -5,9 +5,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.deformation_field import DeformationField
+from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.locate import TetLocator
+from nerfedit_plugin.bending.locate import TetLocator
 
 
 @pytest.fixture(scope="module")

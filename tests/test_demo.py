@@ -5,10 +5,10 @@ import json
 import numpy as np
 from PIL import Image
 
-from nerfedit_plugin.cli import main
-from nerfedit_plugin.datasets import read_image
-from nerfedit_plugin.deformation_field import DeformationField
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.data.datasets import read_image
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
 def test_tiny_demo_runs_every_stage(tmp_path, capsys):

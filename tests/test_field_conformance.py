@@ -5,7 +5,7 @@ import pytest
 
 from nerfedit_plugin.fields.mesh_field import MeshField, MeshFieldConfig
 from nerfedit_plugin.registry import FIELDS, discover
-from nerfedit_plugin.testing_fields import build_field, check_field, check_query
+from nerfedit_plugin.testing.fields import build_field, check_field, check_query
 
 BUILT_IN = ("mesh", "nerf", "neus")
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.editspec import parse_edit_spec
-from nerfedit_plugin.lift import Lift
-from nerfedit_plugin.proxy import tet_signed_volumes
+from nerfedit_plugin.edit.spec import parse_edit_spec
+from nerfedit_plugin.edit.lift import Lift
+from nerfedit_plugin.edit.proxy import tet_signed_volumes
 
 ROT = Rotation.from_rotvec([0.3, -0.5, 0.8]).as_matrix()
 SHIFT = np.array([0.2, -0.1, 0.4])
@@ -70,7 +70,7 @@ def test_tet_edit_applies_handles_to_the_proxy(capsule, capsule_proxy):
 
 
 def test_direct_lift_evaluates_the_space_map(capsule, capsule_proxy):
-    from nerfedit_plugin.deformer import Deformer, DeformerConfig
+    from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
     from nerfedit_plugin.errors import NerfEditError
 
     class Bend(Deformer):

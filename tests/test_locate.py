@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.locate import EPS, TetLocator, barycentric, box_cells, locate_brute_force
+from nerfedit_plugin.bending.locate import EPS, TetLocator, barycentric, box_cells, locate_brute_force
 
 
 @pytest.fixture(params=["numba", "torch"])

@@ -7,9 +7,9 @@ import pytest
 import trimesh
 
 from deformers.mesh import MeshConfig
-from nerfedit_plugin.editspec import load_edit_spec
+from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
 @pytest.fixture

@@ -8,16 +8,16 @@ import pytest
 import torch
 import trimesh
 
-from nerfedit_plugin.cameras import Cameras, look_at
-from nerfedit_plugin.datasets import load_dataset
-from nerfedit_plugin.deformation_field import DeformationField
+from nerfedit_plugin.data.cameras import Cameras, look_at
+from nerfedit_plugin.data.datasets import load_dataset
+from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.mesh_field import MeshField, MeshFieldConfig
-from nerfedit_plugin.lift import Lift
-from nerfedit_plugin.mesh import SurfaceMesh
-from nerfedit_plugin.proxy import TetProxy, embed_points
-from nerfedit_plugin.renderer import RenderConfig, render_image
-from nerfedit_plugin.synthetic import GenerateConfig, bend, colorize, generate_dataset, render_mesh
+from nerfedit_plugin.edit.lift import Lift
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.edit.proxy import TetProxy, embed_points
+from nerfedit_plugin.render.renderer import RenderConfig, render_image
+from nerfedit_plugin.data.synthetic import GenerateConfig, bend, colorize, generate_dataset, render_mesh
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nerfedit_plugin.metrics import image_metrics, lpips, lpips_available, psnr, ssim
+from nerfedit_plugin.training.metrics import image_metrics, lpips, lpips_available, psnr, ssim
 
 RNG = np.random.default_rng(0)
 IMAGE = np.clip(RNG.random((64, 64, 3)) * 0.5 + 0.25, 0, 1).astype(np.float32)

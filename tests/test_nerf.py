@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.datasets import load_dataset
+from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.fields.encoding import DenseGrid, spherical_harmonics
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
-from nerfedit_plugin.trainer import evaluate
+from nerfedit_plugin.training.trainer import evaluate
 
 BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
 
@@ -83,15 +83,15 @@ def test_carving_keeps_every_cell_of_the_object(tiny_scene):
     field = NerfConfig.tiny().setup(scene_bbox=data.scene_bbox)
     field.occupancy.carve(data.cameras, data.alpha > 0)
     assert field.occupancy.fraction < 0.6  # the hull is much smaller than the box
-    from nerfedit_plugin.mesh import SurfaceMesh
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
     mesh = SurfaceMesh.load(tiny_scene / "mesh.ply")
     assert field.occupied(torch.from_numpy(mesh.vertices).float()).all()
 
 
 def test_training_improves_test_psnr_and_checkpoint_round_trips(tiny_scene, tmp_path):
-    from nerfedit_plugin.checkpoint import load_field
-    from nerfedit_plugin.renderer import RenderConfig
+    from nerfedit_plugin.io.checkpoint import load_field
+    from nerfedit_plugin.render.renderer import RenderConfig
 
     train, test = load_dataset(tiny_scene, "train"), load_dataset(tiny_scene, "test")
     config = NerfConfig.tiny(seconds=120.0)  # the step budget binds: same result on a busy machine

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.checkpoint import load_field
-from nerfedit_plugin.datasets import load_dataset
+from nerfedit_plugin.io.checkpoint import load_field
+from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField
-from nerfedit_plugin.renderer import RenderConfig
-from nerfedit_plugin.synthetic import GenerateConfig, generate_dataset
-from nerfedit_plugin.trainer import evaluate
+from nerfedit_plugin.render.renderer import RenderConfig
+from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
+from nerfedit_plugin.training.trainer import evaluate
 
 BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
 RADIUS = 0.5 * 0.3  # init_radius × the smallest half side of BOX
@@ -123,7 +123,7 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
     ball's own distance near its surface."""
     import trimesh
 
-    from nerfedit_plugin.mesh import SurfaceMesh
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
     ball = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
     SurfaceMesh(ball.vertices, ball.faces).save(tmp_path / "ball.ply")

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.cli import main
-from nerfedit_plugin.mesh import SurfaceMesh
-from nerfedit_plugin.run import open_run
-from nerfedit_plugin.synthetic import render_ground_truth
+from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.run import open_run
+from nerfedit_plugin.data.synthetic import render_ground_truth
 
 EDIT = {
     "handles": [

@@ -11,11 +11,11 @@ import pytest
 import torch
 import trimesh
 
-from nerfedit_plugin import proxy as proxy_module
+from nerfedit_plugin.edit import proxy as proxy_module
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.locate import locate_brute_force
-from nerfedit_plugin.mesh import SurfaceMesh
-from nerfedit_plugin.proxy import (
+from nerfedit_plugin.bending.locate import locate_brute_force
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.edit.proxy import (
     DEGENERATE_VOLUME_RATIO,
     ProxyConfig,
     TetProxy,

@@ -16,7 +16,7 @@ def fake_plugins(tmp_path, monkeypatch):
         textwrap.dedent(
             """
             import dataclasses
-            from nerfedit_plugin.deformer import Deformer, DeformerConfig
+            from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 
             class Shift(Deformer):
                 spec_keys = frozenset()
@@ -77,8 +77,8 @@ def test_unknown_plugin_lists_choices():
 def test_registered_plugin_works(fake_plugins):
     import numpy as np
 
-    from nerfedit_plugin.editspec import parse_edit_spec
-    from nerfedit_plugin.mesh import SurfaceMesh
+    from nerfedit_plugin.edit.spec import parse_edit_spec
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
     deformer = discover().config_class(DEFORMERS, "shift")().setup()
     rest = SurfaceMesh(np.eye(3), np.array([[0, 1, 2]]))

@@ -10,18 +10,18 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.cameras import Cameras, generate_rays, look_at
-from nerfedit_plugin.deformation_field import DeformationField
-from nerfedit_plugin.field import Field, FieldConfig
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, look_at
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.mesh_field import MeshField
-from nerfedit_plugin.renderer import (
+from nerfedit_plugin.render.renderer import (
     RenderConfig,
     ray_box,
     render_image,
     render_rays,
     sampling_box,
 )
-from nerfedit_plugin.synthetic import colorize, render_mesh
+from nerfedit_plugin.data.synthetic import colorize, render_mesh
 
 COLOR_POS = torch.tensor([[1.5, -0.7, 0.3], [0.4, 1.1, -1.2], [-0.9, 0.2, 1.4]])
 COLOR_DIR = torch.tensor([[0.8, 0.1, -0.5], [-0.3, 0.9, 0.2], [0.2, -0.6, 0.7]])

@@ -11,11 +11,11 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from deformers.skeleton import Skeleton, SkeletonConfig, SkeletonDeformer, closest_point_barycentrics
-from nerfedit_plugin.editspec import load_edit_spec, parse_edit_spec
+from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.registry import DEFORMERS, discover
-from nerfedit_plugin.samples import sample_mesh_path
+from nerfedit_plugin.io.samples import sample_mesh_path
 from nerfedit_plugin.testing import check_deformer
 
 # A closed tube along z (radius 0.25, z ∈ [-1, 1], a vertex ring every 0.05 including z = 0) and a two-bone chain.

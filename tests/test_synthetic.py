@@ -9,11 +9,11 @@ import pytest
 import torch
 import trimesh
 
-from nerfedit_plugin.cameras import Cameras, generate_rays, sphere_poses
-from nerfedit_plugin.datasets import block_mean, load_dataset, read_image, read_transforms
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
+from nerfedit_plugin.data.datasets import block_mean, load_dataset, read_image, read_transforms
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.mesh import SurfaceMesh
-from nerfedit_plugin.synthetic import (
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.data.synthetic import (
     GenerateConfig,
     colorize,
     generate_dataset,

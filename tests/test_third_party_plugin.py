@@ -78,7 +78,7 @@ def test_broken_entry_points_are_skipped_with_a_reason(tmp_path, on_path):
     reasons = {s.name: s.reason for s in registry.skipped}
     assert "import failed" in reasons["ghost"] and "nerfedit_no_such_module" in reasons["ghost"]
     assert reasons["number"] == "expected a config dataclass, got 42"
-    assert "does not subclass nerfedit_plugin.deformer.DeformerConfig" in reasons["plain"]
+    assert "does not subclass nerfedit_plugin.edit.deformer.DeformerConfig" in reasons["plain"]
     assert not {"ghost", "number", "plain"} & set(registry.names(DEFORMERS))
     assert "cage" in registry.names(DEFORMERS)  # the good ones are unaffected
     with pytest.raises(NerfEditError, match=r"plugin 'ghost' .* is installed but broken: import failed"):

@@ -5,10 +5,10 @@ import math
 import pytest
 import torch
 
-from nerfedit_plugin.cameras import Cameras, look_at
-from nerfedit_plugin.datasets import Dataset
-from nerfedit_plugin.field import Field, FieldConfig
-from nerfedit_plugin.trainer import TrainerConfig, _ray_pool, psnr, train
+from nerfedit_plugin.data.cameras import Cameras, look_at
+from nerfedit_plugin.data.datasets import Dataset
+from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.training.trainer import TrainerConfig, _ray_pool, psnr, train
 
 
 def test_psnr_of_known_errors():

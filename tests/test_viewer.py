@@ -9,9 +9,9 @@ import skimage.io
 import torch
 from PIL import Image
 
-from nerfedit_plugin.cli import main
-from nerfedit_plugin.viewer import edit_geometries
-from nerfedit_plugin.views import turntable_cameras, write_gif
+from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.viewer.layers import edit_geometries
+from nerfedit_plugin.render.views import turntable_cameras, write_gif
 
 EDIT = {
     "handles": [
@@ -87,7 +87,7 @@ def test_cage_handles_are_drawn_on_the_cage(capsule, proxy_cache, tmp_path):
     (tmp_path / "cage.json").write_text(json.dumps({"cage": "auto", **EDIT}))
     assert main(["edit", "--mesh", str(tmp_path / "capsule.ply"), "--deformer", "cage", "--edit",
                  str(tmp_path / "cage.json"), "--out", str(tmp_path / "edit"), "--cache-dir", str(proxy_cache)]) == 0
-    from nerfedit_plugin.mesh import SurfaceMesh
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
     cage = SurfaceMesh.load(tmp_path / "edit" / "cage_rest.ply")
     (handles,) = edit_geometries(capsule, tmp_path / "edit", layers=["handles"])

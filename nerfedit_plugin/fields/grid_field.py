@@ -14,9 +14,9 @@ from typing import Any, Callable, Literal
 
 import torch
 
-from ..field import FieldConfig
-from ..trainer import TrainerConfig
-from .encoding import spherical_harmonics
+from nerfedit_plugin.fields.base import FieldConfig
+from nerfedit_plugin.training.trainer import TrainerConfig
+from nerfedit_plugin.fields.encoding import spherical_harmonics
 
 
 @dataclasses.dataclass

@@ -8,7 +8,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 CHUNK = 1 << 18
 """Points queried at once."""

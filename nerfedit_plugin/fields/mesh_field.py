@@ -16,9 +16,9 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from ..errors import NerfEditError
-from ..field import Field, FieldConfig
-from ..mesh import SurfaceMesh
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
 @dataclasses.dataclass
@@ -54,7 +54,7 @@ class MeshField(Field):
         """The field of ``mesh`` (must have vertex colours), scene box = bbox ± ``config.padding`` × diagonal."""
         config = MeshFieldConfig() if config is None else config
         if mesh.vertex_colors is None:
-            raise NerfEditError("mesh field: the mesh has no vertex colours (see nerfedit_plugin.synthetic.colorize)")
+            raise NerfEditError("mesh field: the mesh has no vertex colours (see nerfedit_plugin.data.synthetic.colorize)")
         if len(mesh.faces) == 0:
             raise NerfEditError("mesh field: the mesh has no triangles")
         pad = config.padding * mesh.bbox_diagonal

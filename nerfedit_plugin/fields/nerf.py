@@ -24,13 +24,13 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from ..field import Field
-from ..mesh import SurfaceMesh
-from ..trainer import TrainerConfig, train
-from .encoding import DenseGrid
-from .grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
-from .level_set import extract_level_set
-from .occupancy import OccupancyGrid
+from nerfedit_plugin.fields.base import Field
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.training.trainer import TrainerConfig, train
+from nerfedit_plugin.fields.encoding import DenseGrid
+from nerfedit_plugin.fields.grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
+from nerfedit_plugin.fields.level_set import extract_level_set
+from nerfedit_plugin.fields.occupancy import OccupancyGrid
 
 
 @dataclasses.dataclass
@@ -111,7 +111,7 @@ class NerfField(Field):
                                   config.occupancy_shell)
 
     def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
-        """Train on ``dataset`` with :func:`nerfedit_plugin.trainer.train` (``trainer`` overrides
+        """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides
         ``config.train``): the occupancy grid is carved to the visual hull, refreshed every ``occupancy_every`` steps
         after the warm-up, and the grid is refined at ``upsample_steps``."""
         config = self.config
@@ -139,6 +139,6 @@ class NerfField(Field):
                                  self.scene_bbox, resolution, level)
 
     def save(self, path: str | os.PathLike) -> None:
-        from ..checkpoint import save_field
+        from nerfedit_plugin.io.checkpoint import save_field
 
         save_field(self, path)

@@ -30,13 +30,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..field import Field
-from ..mesh import SurfaceMesh
-from ..trainer import TrainerConfig, train
-from .encoding import DenseGrid
-from .grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
-from .level_set import extract_level_set
-from .occupancy import OccupancyGrid
+from nerfedit_plugin.fields.base import Field
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.training.trainer import TrainerConfig, train
+from nerfedit_plugin.fields.encoding import DenseGrid
+from nerfedit_plugin.fields.grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
+from nerfedit_plugin.fields.level_set import extract_level_set
+from nerfedit_plugin.fields.occupancy import OccupancyGrid
 
 
 @dataclasses.dataclass
@@ -183,7 +183,7 @@ class NeusField(Field):
             self.occupancy.update(-self.cell_min_distance(), -band, self.config.occupancy_dilation)
 
     def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
-        """Train on ``dataset`` with :func:`nerfedit_plugin.trainer.train` (``trainer`` overrides ``config.train``):
+        """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides ``config.train``):
         colour loss + ``eikonal_weight`` × eikonal loss, cosine annealing over ``anneal_steps``, the occupancy band
         carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and the grid
         refined at ``upsample_steps``."""

@@ -14,7 +14,7 @@ import numpy as np
 import tyro
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.errors import NerfEditError
 
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from nerfedit_plugin.editspec import parse_edit_spec
+from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.testing import check_deformer, default_mesh
 from nerfedit_twist import TwistConfig
 

@@ -1,0 +1,1 @@
+"""The ``nerfedit`` command line: one module per subcommand."""

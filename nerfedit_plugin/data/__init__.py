@@ -1,0 +1,1 @@
+"""Data: cameras (OpenGL convention), Blender/nerfstudio datasets, the synthetic scene generator."""

@@ -1,0 +1,231 @@
+"""Synthetic scenes: render a vertex-coloured mesh on CPU (Open3D ``RaycastingScene``) into a Blender-format dataset,
+and render ground-truth images of a deformed version of that mesh from a dataset's cameras.
+
+Rendering is UNLIT: a ray's colour is the barycentric interpolation of the vertex colours of the triangle it hits
+first, so a field that stores the surface colour (the ``mesh`` field) reproduces the images exactly. Anti-aliasing
+is box-filter supersampling: ``s``×``s`` stratified rays per pixel, averaged (``Cameras.upscale`` then
+``block_mean``), which gives soft alpha edges like real photographs; depth is that of the pixel-centre ray.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from nerfedit_plugin.io.atomic import atomic_dir
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
+from nerfedit_plugin.config import write_config
+from nerfedit_plugin.data.datasets import SPLITS, block_mean, blender_transforms, read_transforms, write_rgba
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+RAYS_PER_CHUNK = 1 << 21
+"""Rays cast per batch of cameras (bounds memory; few large torch ops run faster than many small ones)."""
+FOV_MARGIN = 1.1
+"""Automatic field of view: the normalised object's bounding ball, enlarged by this factor, fills the image."""
+
+
+def normalize(mesh: SurfaceMesh) -> SurfaceMesh:
+    """Centre the bounding box at the origin and scale its longest side to 1. Coordinates are rounded to float32
+    (what PLY files store and the ray caster uses), so the mesh written to disk is exactly the one rendered."""
+    low, high = mesh.vertices.min(0), mesh.vertices.max(0)
+    extent = float((high - low).max())
+    if not extent > 0:
+        raise NerfEditError("mesh: all vertices coincide (nothing to render)")
+    vertices = ((mesh.vertices - (low + high) / 2) / extent).astype(np.float32).astype(np.float64)
+    return mesh.with_vertices(vertices)
+
+
+def colorize(mesh: SurfaceMesh, seed: int = 0) -> SurfaceMesh:
+    """A deterministic, smooth, textured-looking vertex colouring, quantised to 8 bits (exact through PLY).
+
+    With ``p`` the position in the unit bounding box: per channel, a sum of 6 random plane waves of 1–2.5 cycles
+    across the object (smooth 3-D noise), times a soft 3-D checker ``½ + ½ tanh(4 sin 6πp_x sin 6πp_y sin 6πp_z)``
+    that darkens alternate cells to 65 % — a pattern of ~10-pixel features at 100×100 that a field can learn.
+    """
+    rng = np.random.default_rng(seed)
+    low, high = mesh.vertices.min(0), mesh.vertices.max(0)
+    p = (mesh.vertices - low) / max(float((high - low).max()), 1e-12)
+    waves = rng.normal(size=(3, 6, 3))
+    waves *= (2 * math.pi * rng.uniform(1.0, 2.5, size=(3, 6, 1))) / np.linalg.norm(waves, axis=-1, keepdims=True)
+    phases = rng.uniform(0.0, 2 * math.pi, size=(3, 6))
+    noise = np.sin(np.einsum("vd,ckd->vck", p, waves) + phases).sum(-1) / math.sqrt(6.0)
+    base = np.clip(0.55 + 0.3 * noise, 0.0, 1.0)
+    checker = 0.5 + 0.5 * np.tanh(4.0 * np.prod(np.sin(6 * math.pi * p), axis=-1))
+    colors = base * (0.65 + 0.35 * checker)[:, None]
+    return SurfaceMesh(mesh.vertices, mesh.faces, np.round(colors * 255.0) / 255.0)
+
+
+def bend(vertices: np.ndarray, radius: float) -> np.ndarray:
+    """A smooth, isometric reference edit (tests and benchmarks of ray bending): bend the z axis, from z = −1 up,
+    into a circular arc of ``radius`` in the xz plane, ``(x, y, z) ↦ (ρ − (ρ − x) cos θ, y, −1 + (ρ − x) sin θ)``
+    with ``θ = (z + 1)/ρ``."""
+    x, y, z = np.asarray(vertices, dtype=np.float64).T
+    angle = (z + 1.0) / radius
+    return np.stack([radius - (radius - x) * np.cos(angle), y, -1.0 + (radius - x) * np.sin(angle)], axis=1)
+
+
+def render_mesh(
+    mesh: SurfaceMesh, cameras: Cameras, background=(1.0, 1.0, 1.0), supersample: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Render a vertex-coloured mesh, unlit: ``(rgb (C,H,W,3), alpha (C,H,W), depth (C,H,W))``, float32.
+
+    ``rgb`` = premultiplied colour + ``background``·(1 − α) (``background=(0,0,0)`` gives the premultiplied
+    colour); ``alpha`` = fraction of the ``supersample``² sub-pixel rays that hit; ``depth`` = distance along the
+    unit pixel-centre ray of :func:`generate_rays` to the first hit, ``inf`` where it misses.
+    """
+    import open3d as o3d
+
+    if mesh.vertex_colors is None:
+        raise NerfEditError("mesh: has no vertex colours to render (see synthetic.colorize)")
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(mesh.vertices.astype(np.float32), mesh.faces.astype(np.uint32))
+    colors, faces = mesh.vertex_colors.astype(np.float32), mesh.faces
+    fine = cameras.upscale(supersample)
+    background = np.asarray(background, dtype=np.float32)
+
+    def cast(cams: Cameras, index: torch.Tensor) -> dict[str, np.ndarray]:
+        rays = torch.cat(generate_rays(cams, index), dim=-1).cpu().numpy()  # Open3D layout: origin, direction
+        return {k: v.numpy() for k, v in scene.cast_rays(o3d.core.Tensor(rays)).items()}
+
+    rgb, alpha, depth = [], [], []
+    chunk = max(1, RAYS_PER_CHUNK // (fine.width * fine.height))
+    for index in torch.arange(len(cameras), device=cameras.device).split(chunk):
+        hits = cast(fine, index)
+        hit = hits["primitive_ids"] != scene.INVALID_ID
+        tri = faces[np.where(hit, hits["primitive_ids"], 0)]
+        u, v = hits["primitive_uvs"][..., 0:1], hits["primitive_uvs"][..., 1:2]
+        color = (1 - u - v) * colors[tri[..., 0]] + u * colors[tri[..., 1]] + v * colors[tri[..., 2]]
+        for premultiplied, covered in zip(np.where(hit[..., None], color, 0.0).astype(np.float32), hit):
+            coverage = block_mean(covered.astype(np.float32), supersample)
+            rgb.append(block_mean(premultiplied, supersample) + background * (1.0 - coverage[..., None]))
+            alpha.append(coverage)
+        depth.extend((hits if supersample == 1 else cast(cameras, index))["t_hit"])  # pixel-centre rays
+    return np.stack(rgb), np.stack(alpha), np.stack(depth).astype(np.float32)
+
+
+def _write_views(mesh: SurfaceMesh, cameras: Cameras, paths: list[Path], supersample: int) -> None:
+    """Render every camera and write straight-alpha RGBA PNGs (one code path for datasets and ground truth)."""
+    rgb, alpha, _ = render_mesh(mesh, cameras, background=(0.0, 0.0, 0.0), supersample=supersample)
+    straight = np.divide(rgb, alpha[..., None], out=np.zeros_like(rgb), where=alpha[..., None] > 0)
+    for path, image, a in zip(paths, straight, alpha):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_rgba(path, image, a)
+
+
+@dataclass
+class GenerateConfig:
+    """Render a mesh into a Blender-format dataset (transforms_{train,val,test}.json + RGBA PNGs + mesh.ply)."""
+
+    out: Path
+    """Output dataset folder (must not exist or be empty unless --overwrite)."""
+    mesh: str = "sample:bunny"
+    """Mesh to render: a file (PLY/OBJ/OFF/GLB) or sample:NAME (bunny, cow, airplane, bone)."""
+    n_train: int = 50
+    """Training views."""
+    n_val: int = 5
+    """Validation views."""
+    n_test: int = 10
+    """Test views (also the cameras of ground-truth renders of edits)."""
+    resolution: int = 100
+    """Image width and height in pixels."""
+    hemisphere: bool = False
+    """Place cameras on the upper (+z) hemisphere only, as in NeRF-synthetic, instead of the whole sphere."""
+    radius: float = 2.5
+    """Camera distance from the origin; the object is normalised to a longest side of 1 centred at the origin."""
+    fov_degrees: float | None = None
+    """Horizontal = vertical field of view; default: the object's bounding ball (+10 %) fills the image."""
+    seed: int = 0
+    """Seed of the colouring and of the camera placement (splits use seed, seed+1, seed+2)."""
+    supersample: int = 2
+    """Anti-aliasing: supersample × supersample rays per pixel (soft alpha edges); 1 disables it."""
+    up_axis: Literal["y", "z"] = "y"
+    """The mesh's up axis: ``y`` (OBJ/glTF convention, e.g. the samples) is rotated to the z-up world of the cameras."""
+    keep_colors: bool = False
+    """Use the mesh's own vertex colours when it has them instead of the generated texture."""
+    overwrite: bool = False
+    """Replace an existing output folder (only after the new one is complete)."""
+
+
+def _check(config: GenerateConfig) -> None:
+    for name in ("n_train", "n_val", "n_test", "resolution", "supersample"):
+        value = getattr(config, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise NerfEditError(f"{name}: expected a positive integer, got {value!r}")
+    if not config.radius > 0:
+        raise NerfEditError(f"radius: expected a positive distance, got {config.radius}")
+    if config.up_axis not in ("y", "z"):
+        raise NerfEditError(f"up_axis: expected 'y' or 'z', got {config.up_axis!r}")
+    if config.fov_degrees is not None and not 0 < config.fov_degrees < 180:
+        raise NerfEditError(f"fov_degrees: expected degrees in (0, 180), got {config.fov_degrees}")
+
+
+def generate_dataset(config: GenerateConfig) -> Path:
+    """Normalise (and colour) the mesh, render train/val/test views on a sphere or hemisphere, and write the
+    Blender dataset atomically: ``transforms_{split}.json`` (+ ``w``, ``h``, ``aabb`` = object box ± 0.1 and
+    ``supersample``), ``{split}/r_{i}.png`` (RGBA), ``mesh.ply`` (the exact geometry and colours rendered) and
+    ``config.yml``. Returns the dataset folder."""
+    _check(config)
+    mesh = SurfaceMesh.load(config.mesh)
+    if config.up_axis == "y":  # (x, y, z) -> (x, -z, y): a rotation taking +y to +z
+        mesh = mesh.with_vertices(np.stack([mesh.vertices[:, 0], -mesh.vertices[:, 2], mesh.vertices[:, 1]], 1))
+    mesh = normalize(mesh)
+    if not (config.keep_colors and mesh.vertex_colors is not None):
+        mesh = colorize(mesh, config.seed)
+    ball = float(np.linalg.norm(mesh.vertices, axis=1).max())
+    if config.fov_degrees is None:
+        if config.radius <= FOV_MARGIN * ball:
+            raise NerfEditError(f"radius: {config.radius} puts the cameras inside the object's bounding ball")
+        fov = 2.0 * math.asin(FOV_MARGIN * ball / config.radius)
+    else:
+        fov = math.radians(config.fov_degrees)
+    aabb = [(mesh.vertices.min(0) - 0.1).tolist(), (mesh.vertices.max(0) + 0.1).tolist()]
+    counts = {"train": config.n_train, "val": config.n_val, "test": config.n_test}
+    with atomic_dir(config.out, config.overwrite) as stage:
+        for offset, split in enumerate(SPLITS):
+            poses = sphere_poses(counts[split], config.radius, hemisphere=config.hemisphere, seed=config.seed + offset)
+            cameras = Cameras.from_fov(poses, config.resolution, config.resolution, fov)
+            names = [f"./{split}/r_{i}" for i in range(counts[split])]
+            _write_views(mesh, cameras, [stage / f"{name}.png" for name in names], config.supersample)
+            transforms = {**blender_transforms(cameras, names), "aabb": aabb, "supersample": config.supersample}
+            (stage / f"transforms_{split}.json").write_text(json.dumps(transforms, indent=2))
+        mesh.save(stage / "mesh.ply")
+        write_config(stage / "config.yml", config)
+    return Path(config.out)
+
+
+def render_ground_truth(
+    mesh: SurfaceMesh | str | os.PathLike,
+    deformed_vertices: np.ndarray,
+    transforms: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    supersample: int | None = None,
+    overwrite: bool = False,
+) -> list[Path]:
+    """Render the mesh with its vertices moved to ``deformed_vertices (V,3)`` (same faces and colours) from every
+    camera of a transforms file into ``out_dir/<frame image name>.png`` (RGBA), written atomically.
+
+    ``supersample`` defaults to the file's ``supersample`` key (written by :func:`generate_dataset`), else 2, so
+    the identity deformation reproduces the dataset's images exactly. Returns the written paths in frame order.
+    """
+    mesh = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
+    deformed = np.asarray(deformed_vertices, dtype=np.float64)
+    if deformed.shape != mesh.vertices.shape:
+        raise NerfEditError(
+            f"deformed vertices: expected shape {mesh.vertices.shape} (the mesh's vertices), got {deformed.shape}"
+        )
+    parsed = read_transforms(transforms)
+    supersample = int(parsed.meta.get("supersample", 2)) if supersample is None else supersample
+    names = [path.with_suffix(".png").name for path in parsed.image_paths]
+    if len(set(names)) != len(names):
+        raise NerfEditError(f"{parsed.file}: frames share image names; cannot name the ground-truth images")
+    with atomic_dir(out_dir, overwrite) as stage:
+        _write_views(mesh.with_vertices(deformed), parsed.cameras, [stage / name for name in names], supersample)
+    return [Path(out_dir) / name for name in names]

@@ -1,0 +1,170 @@
+"""Lift: carry a surface deformation S → S' into the tet proxy T → T' (DESIGN.md §3 "Lift").
+
+Methods:
+
+- ``tet-arap`` (default, paper Eq. 3): volumetric ARAP (per-tet rotations, ELEMENTS) with the barycentric
+  constraints ``A t' = v'`` as a stiff soft penalty ``E_ARAP(t') + w‖A t' − v'‖²``. The surface usually has more
+  vertices than the proxy, so the hard system is over-determined (rank-deficient KKT); the penalty gives the
+  least-squares fit near the surface and ARAP everywhere else, with one factorisation reused across frames.
+  Frames are warm-started from the previous frame (the first from the ``knn3`` lift).
+- ``closest-point``: each tet vertex moves like the closest point of the rest surface (barycentric blend of its
+  triangle's displacements) — the paper's "Closest Point" baseline, lifted to the proxy.
+- ``knn3``: inverse-distance blend of the displacements of the 3 nearest surface vertices (the paper's "3NN").
+- ``tet-edit``: the edit spec's handles are applied to the proxy vertices and the proxy is deformed by
+  volumetric ARAP directly (the paper's ablation); the surface is not used.
+- ``direct``: the deformer evaluates its own space map at the proxy vertices (cage, skeleton, ...).
+
+Every lift reports, per frame, the constraint residual ``|A t' − v'|`` and the inverted / degenerate tets of T'.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Literal
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from nerfedit_plugin.geometry.arap import ArapSolver
+from nerfedit_plugin.edit.deformer import Deformer
+from nerfedit_plugin.edit.spec import EditSpec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.edit.proxy import TetProxy, tet_signed_volumes
+
+LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
+
+
+@dataclasses.dataclass
+class LiftConfig:
+    """Solver settings of the ARAP lifts (tet-arap, tet-edit)."""
+
+    constraint_weight: float = 1000.0
+    """Stiffness of the barycentric constraints relative to the ARAP energy (tet-arap)."""
+    max_iterations: int = 100
+    """Upper bound on ARAP local/global iterations per frame."""
+    tolerance: float = 1e-6
+    """Stop when the relative energy decrease falls below this."""
+
+
+@dataclasses.dataclass
+class FrameReport:
+    """Quality of one lifted frame (distances relative to the rest surface's bbox diagonal)."""
+
+    residual_max: float
+    residual_rms: float
+    inverted_tets: int
+    degenerate_tets: int
+    flipped_surface_faces: int
+    """Surface triangles whose normal turned by more than 90° (a folded edit folds the proxy too)."""
+    iterations: int
+    seconds: float
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalised triangle normals ``(b − a) × (c − a)``."""
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    return np.cross(b - a, c - a)
+
+
+def knn3_displacements(rest: np.ndarray, moved: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Inverse-distance blend of the displacements of the 3 nearest ``rest`` points, evaluated at ``points``."""
+    dist, idx = cKDTree(rest).query(points, k=3)
+    weights = 1.0 / np.maximum(dist, 1e-12)
+    weights /= weights.sum(1, keepdims=True)
+    return np.einsum("mk,mkd->md", weights, (moved - rest)[idx])
+
+
+def closest_point_displacements(rest: SurfaceMesh, moved: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Displacement of the closest point of the rest surface (barycentric in its triangle) at ``points``."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(rest.vertices.astype(np.float32), rest.faces.astype(np.uint32))
+    hit = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+    tri = rest.faces[hit["primitive_ids"].numpy().astype(np.int64)]
+    uv = hit["primitive_uvs"].numpy().astype(np.float64)
+    bary = np.column_stack([1.0 - uv.sum(1), uv])
+    return np.einsum("mk,mkd->md", bary, (moved - rest.vertices)[tri])
+
+
+class Lift:
+    """Binds a lift method to a proxy once (factorisations, trees), then lifts frames."""
+
+    def __init__(
+        self,
+        proxy: TetProxy,
+        rest: SurfaceMesh,
+        method: LiftMethod = "tet-arap",
+        config: LiftConfig = LiftConfig(),
+        *,
+        deformer: Deformer | None = None,
+        edit: EditSpec | None = None,
+    ) -> None:
+        self.proxy, self.rest, self.method, self.config = proxy, rest, method, config
+        self.deformer = deformer
+        self.embedding = proxy.embedding_matrix()
+        self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
+        self.rest_normals = face_normals(rest.vertices, rest.faces)
+        if method == "direct" and (deformer is None or not deformer.supports_points()):
+            name = type(deformer).__name__ if deformer is not None else "no deformer"
+            raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
+        if method == "tet-arap":
+            self.solver = ArapSolver(
+                proxy.vertices,
+                proxy.tets,
+                energy="elements",
+                constraints=self.embedding,
+                constraint_weight=config.constraint_weight,
+            )
+        elif method == "tet-edit":
+            if edit is None or not edit.handles:
+                raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
+            fixed, self.handle_targets = edit.handle_targets(proxy.vertices)
+            self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)
+
+    def frame(self, index: int, surface: np.ndarray, previous: np.ndarray | None) -> tuple[np.ndarray, int]:
+        """Deformed proxy vertices for one frame (and the ARAP iteration count, 0 for direct methods)."""
+        method, proxy = self.method, self.proxy
+        if method == "knn3":
+            return proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices), 0
+        if method == "closest-point":
+            return proxy.vertices + closest_point_displacements(self.rest, surface, proxy.vertices), 0
+        if method == "direct":
+            return np.asarray(self.deformer.deform_points(proxy.vertices, index), dtype=np.float64), 0
+        kwargs = dict(max_iterations=self.config.max_iterations, tolerance=self.config.tolerance)
+        if method == "tet-edit":
+            result = self.solver.solve(fixed_positions=self.handle_targets[index], initial=previous, **kwargs)
+        else:
+            if previous is None:
+                previous = proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices)
+            result = self.solver.solve(constraint_targets=surface, initial=previous, **kwargs)
+        return result.vertices, result.iterations
+
+    def report(self, deformed: np.ndarray, surface: np.ndarray, iterations: int, seconds: float) -> FrameReport:
+        scale = self.rest.bbox_diagonal
+        residual = np.linalg.norm(self.embedding @ deformed - surface, axis=1) / scale
+        volumes = tet_signed_volumes(deformed, self.proxy.tets)
+        tiny = 1e-9 * np.abs(self.rest_volumes).mean()
+        flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
+        return FrameReport(
+            residual_max=float(residual.max()),
+            residual_rms=float(np.sqrt(np.mean(residual**2))),
+            inverted_tets=int(np.count_nonzero(volumes < -tiny)),
+            degenerate_tets=int(np.count_nonzero(np.abs(volumes) <= tiny)),
+            flipped_surface_faces=int(np.count_nonzero(flipped)),
+            iterations=iterations,
+            seconds=seconds,
+        )
+
+    def __call__(self, frames: np.ndarray) -> tuple[np.ndarray, list[FrameReport]]:
+        """Lift surface frames ``(F, V, 3)`` → proxy frames ``(F, N, 3)`` and one report per frame."""
+        out, reports, previous = [], [], None
+        for index, surface in enumerate(np.asarray(frames, dtype=np.float64)):
+            start = time.perf_counter()
+            deformed, iterations = self.frame(index, surface, previous)
+            reports.append(self.report(deformed, surface, iterations, time.perf_counter() - start))
+            out.append(deformed)
+            previous = deformed
+        return np.stack(out), reports

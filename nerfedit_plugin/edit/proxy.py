@@ -1,0 +1,368 @@
+"""TetProxy: a tetrahedral mesh around a surface, with the surface embedded in it (tet, barycentrics).
+
+Build (``build_proxy``): offset cage = pymeshlab alpha wrap of the surface at distance ``offset`` (watertight and
+free of the self-intersections of a naive normal offset) -> quadric decimation to ``cage_faces`` -> pytetwild
+(``optimize=True``) -> tets reoriented to positive volume, degenerate tets and unreferenced vertices dropped ->
+every surface vertex located exactly (float64) in the tets. Decimation and tetwild's envelope may cut into the
+offset, even inside the surface: unless every surface vertex lies in a tet, at least ``min_margin`` x offset from
+the tet boundary, the offset grows and the build repeats (bounded), then fails with :class:`NerfEditError` (never
+clamps). ``cached_proxy`` stores the result as ``<cache_dir>/<sha256 of mesh + parameters>.npz``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import scipy.sparse
+
+from nerfedit_plugin.io.atomic import atomic_path
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+PROXY_FORMAT = 1
+"""Version of the build algorithm and file layout; part of the cache key (bump to invalidate old caches)."""
+
+DEGENERATE_VOLUME_RATIO = 1e-8
+"""Tets with volume <= this x the median tet volume count as zero-volume and are dropped."""
+
+
+@dataclass
+class ProxyConfig:
+    """How the tetrahedral proxy around a surface mesh is built."""
+
+    offset: float | None = None
+    """Absolute cage offset in mesh units; None derives it from the camera distance or the bounding box."""
+    offset_camera_fraction: float = 0.05
+    """Derived offset = this x the mean camera-to-object-centre distance, when cameras are known (the paper's 5%)."""
+    offset_bbox_fraction: float = 0.02
+    """Derived offset = this x the bounding-box diagonal when no camera distance is known."""
+    wrap_alpha_factor: float = 1.0
+    """Alpha-wrap ball size as a multiple of the offset: smaller follows concavities closer (more faces, slower)."""
+    cage_faces: int = 1000
+    """Target face count of the decimated cage before tetrahedralisation (pytetwild is slow on dense input)."""
+    edge_length_fac: float = 0.05
+    """pytetwild ideal tet edge length as a fraction of the cage's bounding-box diagonal."""
+    epsilon: float = 5e-3
+    """pytetwild envelope: max distance of the tet boundary from the cage, relative to the bounding-box diagonal."""
+    min_margin: float = 0.2
+    """Every surface vertex must lie at least this x offset inside the tet boundary (decimation and tetwild's
+    envelope cut into the offset); otherwise the build is retried with a larger offset."""
+    max_attempts: int = 4
+    """Builds to try; each retry multiplies the offset by ``offset_growth``."""
+    offset_growth: float = 1.5
+    """Offset multiplier between attempts."""
+
+    def validate(self) -> None:
+        """Raise :class:`NerfEditError` naming the first invalid field."""
+        positive = ["offset_camera_fraction", "offset_bbox_fraction", "wrap_alpha_factor", "edge_length_fac", "epsilon"]
+        if self.offset is not None:
+            positive.append("offset")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise NerfEditError(f"proxy.{name}: must be a positive number, got {value!r}")
+        if not (np.isfinite(self.min_margin) and 0 <= self.min_margin < 1):
+            raise NerfEditError(f"proxy.min_margin: must be in [0, 1), got {self.min_margin!r}")
+        if self.cage_faces < 8:
+            raise NerfEditError(f"proxy.cage_faces: must be >= 8, got {self.cage_faces}")
+        if self.max_attempts < 1:
+            raise NerfEditError(f"proxy.max_attempts: must be >= 1, got {self.max_attempts}")
+        if not self.offset_growth > 1:
+            raise NerfEditError(f"proxy.offset_growth: must be > 1, got {self.offset_growth}")
+
+
+def tet_signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes ((b-a) x (c-a)) . (d-a) / 6 of tets ``(K,4)``; positive = positively oriented."""
+    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
+
+
+def boundary_faces(tets: np.ndarray) -> np.ndarray:
+    """Triangles ``(B,3)`` that belong to exactly one tet, oriented outward for positively oriented tets."""
+    faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
+    _, inverse, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inverse.ravel()] == 1]
+
+
+def distance_to_boundary(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Unsigned distance ``(M,)`` from ``points`` to the boundary surface of the tet mesh (Open3D, float32)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(boundary_faces(tets).astype(np.uint32))
+    )
+    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().astype(np.float64)
+
+
+@dataclass
+class TetProxy:
+    """Tet mesh (positively oriented, no zero-volume tets), the cage it fills, and the surface embedding.
+
+    Surface vertex ``i`` = ``sum_j embed_bary[i, j] * vertices[tets[embed_tets[i], j]]``.
+    """
+
+    vertices: np.ndarray
+    tets: np.ndarray
+    cage: SurfaceMesh
+    embed_tets: np.ndarray
+    embed_bary: np.ndarray
+    info: dict = field(default_factory=dict)
+    """Build record (JSON): offset used, attempts, margin (min surface-to-boundary distance / offset), stage
+    times in seconds, dropped degenerate tets, cage face count."""
+
+    def embedding_matrix(self) -> scipy.sparse.csr_matrix:
+        """Sparse A (V x N) with the barycentrics of each surface vertex in its row: ``A @ vertices == surface``."""
+        n_surface = len(self.embed_tets)
+        return scipy.sparse.csr_matrix(
+            (self.embed_bary.ravel(), self.tets[self.embed_tets].ravel(), np.arange(0, 4 * n_surface + 1, 4)),
+            shape=(n_surface, len(self.vertices)),
+        )
+
+    _ARRAYS = ("vertices", "tets", "embed_tets", "embed_bary")
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write an ``.npz`` atomically."""
+        with atomic_path(path) as tmp:
+            np.savez(
+                tmp,
+                format=np.int64(PROXY_FORMAT),
+                **{name: getattr(self, name) for name in self._ARRAYS},
+                cage_vertices=self.cage.vertices,
+                cage_faces=self.cage.faces,
+                info=np.array(json.dumps(self.info)),
+            )
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "TetProxy":
+        """Read a file written by :meth:`save`; a missing, foreign or corrupt file raises :class:`NerfEditError`."""
+        path = Path(path)
+        if not path.is_file():
+            raise NerfEditError(f"{path}: tet proxy file not found")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if int(data["format"]) != PROXY_FORMAT:
+                    raise NerfEditError(f"{path}: tet proxy format {int(data['format'])}, expected {PROXY_FORMAT}")
+                arrays = {name: data[name] for name in cls._ARRAYS}
+                cage = SurfaceMesh(data["cage_vertices"], data["cage_faces"])
+                info = json.loads(str(data["info"]))
+        except NerfEditError:
+            raise
+        except Exception as exc:  # zipfile, KeyError, ValueError, json errors: all mean "not a proxy file"
+            raise NerfEditError(f"{path}: not a readable tet proxy file ({exc})") from exc
+        proxy = cls(
+            vertices=arrays["vertices"].astype(np.float64),
+            tets=arrays["tets"].astype(np.int64),
+            cage=cage,
+            embed_tets=arrays["embed_tets"].astype(np.int64),
+            embed_bary=arrays["embed_bary"].astype(np.float64),
+            info=info,
+        )
+        proxy._check(str(path))
+        return proxy
+
+    def _check(self, where: str) -> None:
+        n, k = len(self.vertices), len(self.tets)
+        ok = (
+            self.vertices.ndim == 2 and self.vertices.shape[1] == 3
+            and self.tets.ndim == 2 and self.tets.shape[1] == 4 and k > 0
+            and self.tets.min() >= 0 and self.tets.max() < n
+            and self.embed_tets.ndim == 1 and self.embed_bary.shape == (len(self.embed_tets), 4)
+            and (len(self.embed_tets) == 0 or (self.embed_tets.min() >= 0 and self.embed_tets.max() < k))
+        )
+        if not ok:
+            raise NerfEditError(f"{where}: inconsistent tet proxy arrays")
+
+
+# ---- build ------------------------------------------------------------------------------------------------------
+
+
+def resolve_offset(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None) -> float:
+    """The cage offset: ``config.offset``, else a fraction of ``camera_distance``, else of the bbox diagonal."""
+    if config.offset is not None:
+        return float(config.offset)
+    if camera_distance is not None:
+        if not (np.isfinite(camera_distance) and camera_distance > 0):
+            raise NerfEditError(f"camera distance: must be a positive number, got {camera_distance!r}")
+        return float(config.offset_camera_fraction * camera_distance)
+    return float(config.offset_bbox_fraction * mesh.bbox_diagonal)
+
+
+@contextlib.contextmanager
+def _stage(times: dict[str, float], name: str) -> Iterator[None]:
+    """Add the wall time of the block to ``times[name]`` (stages repeat across attempts)."""
+    start = time.perf_counter()
+    yield
+    times[name] = times.get(name, 0.0) + time.perf_counter() - start
+
+
+def _check_mesh(mesh: SurfaceMesh) -> None:
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        raise NerfEditError("mesh: empty (no triangles); cannot build a tet proxy")
+    if not mesh.bbox_diagonal > 0:
+        raise NerfEditError("mesh: all vertices coincide; cannot build a tet proxy")
+
+
+def _wrap_input(mesh: SurfaceMesh, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle soup to wrap: the mesh plus a right triangle (legs ``size``) at each unreferenced vertex.
+
+    The alpha wrap ignores unreferenced vertices, yet the embedding must contain them; and the wrap of a bare point
+    is a blob so small that tetwild's simplification deletes it, so the triangle is offset-sized."""
+    stray = np.setdiff1d(np.arange(len(mesh.vertices)), mesh.faces.ravel())
+    if len(stray) == 0:
+        return mesh.vertices, mesh.faces
+    points = mesh.vertices[stray]
+    extra = np.concatenate([points + [size, 0.0, 0.0], points + [0.0, size, 0.0]])
+    base = len(mesh.vertices)
+    tris = np.stack([stray, base + np.arange(len(stray)), base + len(stray) + np.arange(len(stray))], axis=1)
+    return np.concatenate([mesh.vertices, extra]), np.concatenate([mesh.faces, tris])
+
+
+def build_cage(mesh: SurfaceMesh, offset: float, config: ProxyConfig, times: dict | None = None) -> SurfaceMesh:
+    """Watertight cage at distance ~``offset`` outside ``mesh``: alpha wrap, then quadric decimation."""
+    import pymeshlab
+
+    times = {} if times is None else times
+    vertices, faces = _wrap_input(mesh, offset)
+    meshset = pymeshlab.MeshSet()
+    meshset.add_mesh(pymeshlab.Mesh(vertices, faces.astype(np.int32)))
+    with _stage(times, "wrap"):
+        meshset.generate_alpha_wrap(
+            alpha=pymeshlab.PureValue(config.wrap_alpha_factor * offset), offset=pymeshlab.PureValue(offset)
+        )
+    with _stage(times, "decimate"):
+        if meshset.current_mesh().face_number() > config.cage_faces:
+            meshset.meshing_decimation_quadric_edge_collapse(
+                targetfacenum=config.cage_faces, preservetopology=True, preservenormal=True
+            )
+    wrapped = meshset.current_mesh()
+    return SurfaceMesh(wrapped.vertex_matrix(), wrapped.face_matrix())
+
+
+def clean_tets(vertices: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Reorient tets to positive volume, drop zero-volume ones (<= DEGENERATE_VOLUME_RATIO x median) and
+    unreferenced vertices. Returns ``(vertices, tets, n_dropped)``."""
+    tets = np.asarray(tets, dtype=np.int64).copy()
+    volumes = tet_signed_volumes(vertices, tets)
+    negative = volumes < 0
+    tets[negative] = tets[negative][:, [0, 2, 1, 3]]
+    magnitude = np.abs(volumes)
+    keep = magnitude > DEGENERATE_VOLUME_RATIO * np.median(magnitude) if len(tets) else magnitude > 0
+    tets = tets[keep]
+    used, tets = np.unique(tets, return_inverse=True)
+    return np.ascontiguousarray(vertices[used], dtype=np.float64), tets.reshape(-1, 4), int((~keep).sum())
+
+
+def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Raw pytetwild tet mesh of the cage (``optimize=True``; orientation as pytetwild returns it).
+
+    Runs in a scratch folder: fTetWild drops ``__tracked_surface.stl`` into the working directory.
+    """
+    import tempfile
+
+    import pytetwild
+
+    with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):
+        vertices, tets = pytetwild.tetrahedralize(
+            cage.vertices, cage.faces.astype(np.int32), edge_length_fac=config.edge_length_fac,
+            epsilon=config.epsilon, optimize=True, quiet=True,
+        )
+    return np.asarray(vertices, dtype=np.float64), np.asarray(tets, dtype=np.int64).reshape(-1, 4)
+
+
+def embed_points(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact float64 point location: ``(tet (M,) int64, -1 outside; bary (M,4) float64)``."""
+    import torch
+
+    from nerfedit_plugin.bending.locate import TetLocator
+
+    if len(tets) == 0:
+        return np.full(len(points), -1, dtype=np.int64), np.zeros((len(points), 4))
+    locator = TetLocator(torch.from_numpy(vertices), torch.from_numpy(tets), dtype=torch.float64)
+    tet, bary = locator.locate(torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)))
+    return tet.cpu().numpy().astype(np.int64), bary.cpu().numpy().astype(np.float64)
+
+
+def build_proxy(
+    mesh: SurfaceMesh, config: ProxyConfig = ProxyConfig(), camera_distance: float | None = None
+) -> TetProxy:
+    """Build the tet proxy of ``mesh`` (see the module docstring); raises :class:`NerfEditError` on bad input
+    or when ``config.max_attempts`` growing offsets all leave a surface vertex outside the tets or closer than
+    ``config.min_margin`` x offset to their boundary."""
+    config.validate()
+    _check_mesh(mesh)
+    offset = resolve_offset(mesh, config, camera_distance)
+    times: dict[str, float] = {}
+    for attempt in range(1, config.max_attempts + 1):
+        cage = build_cage(mesh, offset, config, times)
+        with _stage(times, "tetwild"):
+            raw_vertices, raw_tets = tetrahedralize(cage, config)
+        with _stage(times, "clean"):
+            vertices, tets, n_dropped = clean_tets(raw_vertices, raw_tets)
+        with _stage(times, "embed"):
+            embed_tets, embed_bary = embed_points(vertices, tets, mesh.vertices)
+        n_outside = int((embed_tets < 0).sum())
+        if n_outside == 0:
+            with _stage(times, "margin"):
+                margin = float(distance_to_boundary(vertices, tets, mesh.vertices).min()) / offset
+            if margin >= config.min_margin:
+                info = {
+                    "offset": offset, "attempts": attempt, "margin": margin, "times": times,
+                    "dropped_degenerate_tets": n_dropped, "cage_faces": len(cage.faces), "format": PROXY_FORMAT,
+                }
+                return TetProxy(vertices, tets, cage, embed_tets, embed_bary, info)
+        offset *= config.offset_growth
+    problem = (
+        f"{n_outside} of {len(mesh.vertices)} surface vertices lie outside the tets"
+        if n_outside
+        else f"a surface vertex lies only {margin:.3g} x offset inside the tet boundary (proxy.min_margin "
+        f"{config.min_margin})"
+    )
+    raise NerfEditError(
+        f"proxy: after {config.max_attempts} attempts (last offset {offset / config.offset_growth:.4g}) {problem}; "
+        "raise proxy.offset or proxy.cage_faces"
+    )
+
+
+# ---- cache ------------------------------------------------------------------------------------------------------
+
+
+def proxy_cache_key(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None) -> str:
+    """sha256 of the mesh arrays and every parameter that changes the build (the offset as resolved)."""
+    _check_mesh(mesh)
+    params = dataclasses.asdict(config)
+    for name in ("offset", "offset_camera_fraction", "offset_bbox_fraction"):
+        del params[name]
+    params["offset"] = resolve_offset(mesh, config, camera_distance).hex()
+    params["format"] = PROXY_FORMAT
+    digest = hashlib.sha256()
+    for array in (mesh.vertices, mesh.faces):
+        digest.update(repr((array.dtype.str, array.shape)).encode())
+        digest.update(np.ascontiguousarray(array).tobytes())
+    digest.update(json.dumps(params, sort_keys=True).encode())
+    return digest.hexdigest()
+
+
+def cached_proxy(
+    mesh: SurfaceMesh, config: ProxyConfig, cache_dir: str | os.PathLike, camera_distance: float | None = None
+) -> tuple[TetProxy, bool]:
+    """``(proxy, hit)``: load ``<cache_dir>/<key>.npz`` if present and readable, else build and store it."""
+    config.validate()
+    path = Path(cache_dir) / f"{proxy_cache_key(mesh, config, camera_distance)}.npz"
+    if path.is_file():
+        try:
+            return TetProxy.load(path), True
+        except NerfEditError:
+            pass  # unreadable cache entry: rebuild and overwrite it
+    proxy = build_proxy(mesh, config, camera_distance)
+    proxy.save(path)
+    return proxy, False

@@ -1,0 +1,268 @@
+"""Edit specs (DESIGN.md §4): handle selections, transforms and frame interpolation, parsed from JSON or YAML.
+
+A handle selects rest-space points (``box``, ``sphere`` or ``indices``) and either pins them (``"fixed": true``)
+or moves them by a transform. At interpolation time t ∈ [0, 1] a transform maps
+``x ↦ c + (1 + (s − 1)t) R(t)(x − c) + t·translate`` where ``R(t)`` rotates by ``t·degrees`` about ``axis``
+(slerp from the identity) and the pivot ``c`` is ``rotate.center`` or else the selection's rest centroid.
+``frames = n`` gives t = 0, 1/(n−1), …, 1 (frame 0 is the rest pose); ``frames = 1`` gives t = 1.
+Every malformed spec raises :class:`NerfEditError` naming the file and the key before any work is done.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from nerfedit_plugin.errors import NerfEditError
+
+SELECT_KINDS = ("box", "sphere", "indices")
+
+
+def _error(source: str, key: str, problem: str) -> NerfEditError:
+    return NerfEditError(f"{source}: {key}: {problem}")
+
+
+def _check_keys(obj: Any, allowed: Iterable[str], source: str, key: str, required: Iterable[str] = ()) -> dict:
+    if not isinstance(obj, dict):
+        raise _error(source, key, f"expected a mapping, got {type(obj).__name__}")
+    allowed = set(allowed)
+    for name in obj:
+        if name not in allowed:
+            raise _error(source, f"{key}.{name}" if key else str(name), f"unknown key (expected one of {sorted(allowed)})")
+    for name in required:
+        if name not in obj:
+            raise _error(source, f"{key}.{name}" if key else name, "missing")
+    return obj
+
+
+def _vector(value: Any, source: str, key: str, n: int = 3) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _error(source, key, f"expected {n} numbers, got {value!r}") from None
+    if arr.shape != (n,):
+        raise _error(source, key, f"expected {n} numbers, got {value!r}")
+    if not np.isfinite(arr).all():
+        raise _error(source, key, "contains NaN or Inf")
+    return arr
+
+
+def _number(value: Any, source: str, key: str, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _error(source, key, f"expected a number, got {value!r}")
+    if not math.isfinite(value):
+        raise _error(source, key, "is NaN or Inf")
+    if positive and value <= 0:
+        raise _error(source, key, f"must be > 0, got {value}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which rest points a handle grabs: ``box`` (min/max corners), ``sphere`` (center/radius) or ``indices``."""
+
+    kind: str
+    params: dict
+    key: str
+
+    def indices(self, points: np.ndarray, source: str) -> np.ndarray:
+        """Sorted indices of the selected points; an empty or out-of-range selection is an error."""
+        if self.kind == "box":
+            inside = np.all((points >= self.params["min"]) & (points <= self.params["max"]), axis=1)
+            idx = np.flatnonzero(inside)
+        elif self.kind == "sphere":
+            dist = np.linalg.norm(points - self.params["center"], axis=1)
+            idx = np.flatnonzero(dist <= self.params["radius"])
+        else:
+            idx = self.params["indices"]
+            if idx.size and (idx.min() < 0 or idx.max() >= len(points)):
+                bad = idx[(idx < 0) | (idx >= len(points))][0]
+                raise _error(source, self.key, f"index {bad} out of range for {len(points)} points")
+        if idx.size == 0:
+            raise _error(source, self.key, f"selects no points (of {len(points)})")
+        return idx
+
+
+@dataclass(frozen=True)
+class Transform:
+    """Similarity transform with a pivot; :meth:`apply` evaluates it at interpolation time ``t``."""
+
+    translate: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rotvec: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    center: np.ndarray | None = None
+    scale: float = 1.0
+
+    def apply(self, points: np.ndarray, t: float, pivot: np.ndarray) -> np.ndarray:
+        c = self.center if self.center is not None else pivot
+        rot = Rotation.from_rotvec(t * self.rotvec).as_matrix()
+        s = 1.0 + (self.scale - 1.0) * t
+        return c + s * (points - c) @ rot.T + t * self.translate
+
+
+@dataclass(frozen=True)
+class Handle:
+    selection: Selection
+    transform: Transform | None  # None = fixed
+
+
+@dataclass(frozen=True)
+class EditSpec:
+    """A parsed edit: handles, frame count and the deformer-specific top-level keys (``extra``)."""
+
+    handles: tuple[Handle, ...] = ()
+    frames: int = 1
+    extra: dict = field(default_factory=dict)
+    frames_given: bool = False
+    """Whether the spec set ``frames`` (a deformer with its own timeline, e.g. a BVH clip, uses it when not)."""
+    source: str = "<edit spec>"
+    base_dir: Path = Path(".")
+
+    @property
+    def times(self) -> np.ndarray:
+        """Interpolation time of each frame."""
+        return np.ones(1) if self.frames == 1 else np.linspace(0.0, 1.0, self.frames)
+
+    def handle_targets(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Resolve handles against rest ``points`` → ``(indices (H,), targets (frames, H, 3))``.
+
+        A point selected by several handles follows the last one listed.
+        """
+        if not self.handles:
+            raise _error(self.source, "handles", "no handles given")
+        points = np.asarray(points, dtype=np.float64)
+        owner = np.full(len(points), -1)
+        for h, handle in enumerate(self.handles):
+            owner[handle.selection.indices(points, self.source)] = h
+        idx = np.flatnonzero(owner >= 0)
+        targets = np.repeat(points[idx][None], self.frames, axis=0)
+        for h, handle in enumerate(self.handles):
+            if handle.transform is None:
+                continue
+            sel = handle.selection.indices(points, self.source)
+            pivot = points[sel].mean(0)
+            cols = np.searchsorted(idx, sel[owner[sel] == h])
+            for f, t in enumerate(self.times):
+                targets[f, cols] = handle.transform.apply(points[idx[cols]], t, pivot)
+        return idx, targets
+
+    def path(self, key: str) -> Path:
+        """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""
+        if key not in self.extra:
+            raise _error(self.source, key, "missing")
+        value = self.extra[key]
+        if not isinstance(value, (str, os.PathLike)):
+            raise _error(self.source, key, f"expected a file path, got {value!r}")
+        resolved = (self.base_dir / value).resolve()
+        if not resolved.is_file():
+            raise _error(self.source, key, f"file not found: {resolved}")
+        return resolved
+
+    def paths(self, key: str) -> list[Path]:
+        """Resolve a list of files or one glob pattern under ``key`` (sorted); at least one must exist."""
+        value = self.extra.get(key)
+        if isinstance(value, str):
+            found = sorted(p.resolve() for p in self.base_dir.glob(value)) if any(ch in value for ch in "*?[") else None
+            if found is None:
+                return [self.path(key)]
+            if not found:
+                raise _error(self.source, key, f"pattern {value!r} matches no file")
+            return found
+        if isinstance(value, list) and value:
+            out = []
+            for i, item in enumerate(value):
+                resolved = (self.base_dir / str(item)).resolve()
+                if not resolved.is_file():
+                    raise _error(self.source, f"{key}[{i}]", f"file not found: {resolved}")
+                out.append(resolved)
+            return out
+        raise _error(self.source, key, "expected a file, a glob pattern or a non-empty list of files")
+
+
+def _parse_selection(obj: Any, source: str, key: str) -> Selection:
+    _check_keys(obj, SELECT_KINDS, source, key)
+    if len(obj) != 1:
+        raise _error(source, key, f"expected exactly one of {list(SELECT_KINDS)}")
+    kind, value = next(iter(obj.items()))
+    key = f"{key}.{kind}"
+    if kind == "box":
+        _check_keys(value, ("min", "max"), source, key, required=("min", "max"))
+        lo, hi = _vector(value["min"], source, f"{key}.min"), _vector(value["max"], source, f"{key}.max")
+        if np.any(lo > hi):
+            raise _error(source, key, "min exceeds max")
+        return Selection(kind, {"min": lo, "max": hi}, key)
+    if kind == "sphere":
+        _check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
+        center = _vector(value["center"], source, f"{key}.center")
+        return Selection(kind, {"center": center, "radius": _number(value["radius"], source, f"{key}.radius", True)}, key)
+    if not isinstance(value, list) or not value or not all(isinstance(i, int) and not isinstance(i, bool) for i in value):
+        raise _error(source, key, "expected a non-empty list of integer vertex indices")
+    return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)
+
+
+def _parse_transform(obj: Any, source: str, key: str) -> Transform:
+    _check_keys(obj, ("translate", "rotate", "scale"), source, key)
+    if not obj:
+        raise _error(source, key, "empty transform")
+    translate = _vector(obj["translate"], source, f"{key}.translate") if "translate" in obj else np.zeros(3)
+    rotvec, center = np.zeros(3), None
+    if "rotate" in obj:
+        rkey = f"{key}.rotate"
+        rot = _check_keys(obj["rotate"], ("axis", "degrees", "center"), source, rkey, required=("axis", "degrees"))
+        axis = _vector(rot["axis"], source, f"{rkey}.axis")
+        norm = np.linalg.norm(axis)
+        if norm == 0:
+            raise _error(source, f"{rkey}.axis", "is the zero vector")
+        rotvec = axis / norm * math.radians(_number(rot["degrees"], source, f"{rkey}.degrees"))
+        if "center" in rot:
+            center = _vector(rot["center"], source, f"{rkey}.center")
+    scale = _number(obj["scale"], source, f"{key}.scale", positive=True) if "scale" in obj else 1.0
+    return Transform(translate, rotvec, center, scale)
+
+
+def parse_edit_spec(
+    data: Any, allowed_keys: Iterable[str] = ("handles",), source: str = "<edit spec>", base_dir: str | os.PathLike = "."
+) -> EditSpec:
+    """Validate a spec mapping. ``allowed_keys``: the top-level keys the deformer accepts (``frames`` always is)."""
+    allowed = set(allowed_keys) | {"frames"}
+    _check_keys(data, allowed, source, "")
+    frames = data.get("frames", 1)
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise _error(source, "frames", f"expected an integer >= 1, got {frames!r}")
+    handles = []
+    if "handles" in data:
+        if not isinstance(data["handles"], list) or not data["handles"]:
+            raise _error(source, "handles", "expected a non-empty list")
+        for i, item in enumerate(data["handles"]):
+            key = f"handles[{i}]"
+            _check_keys(item, ("select", "fixed", "transform"), source, key, required=("select",))
+            selection = _parse_selection(item["select"], source, f"{key}.select")
+            fixed = item.get("fixed", False)
+            if not isinstance(fixed, bool):
+                raise _error(source, f"{key}.fixed", f"expected true or false, got {fixed!r}")
+            if fixed == ("transform" in item):
+                raise _error(source, key, "needs exactly one of 'fixed': true or a 'transform'")
+            transform = None if fixed else _parse_transform(item["transform"], source, f"{key}.transform")
+            handles.append(Handle(selection, transform))
+    extra = {k: v for k, v in data.items() if k not in ("handles", "frames")}
+    return EditSpec(tuple(handles), frames, extra, "frames" in data, source, Path(base_dir))
+
+
+def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:
+    """Read a JSON or YAML edit spec (by suffix; ``.json`` else YAML) and validate it."""
+    path = Path(path)
+    if not path.is_file():
+        raise NerfEditError(f"{path}: edit spec not found")
+    text = path.read_text()
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise NerfEditError(f"{path}: cannot parse ({exc})".replace("\n", " ")) from exc
+    return parse_edit_spec(data, allowed_keys, str(path), path.parent)

@@ -1,0 +1,122 @@
+"""SurfaceMesh: plain triangle-mesh arrays plus I/O (trimesh) and Open3D / trimesh conversions."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.io.atomic import atomic_path
+from nerfedit_plugin.io.samples import resolve_mesh_path
+
+
+@dataclass
+class SurfaceMesh:
+    """A triangle mesh: ``vertices (V,3) float64``, ``faces (F,3) int64``, optional ``vertex_colors (V,3)`` in [0,1]."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    vertex_colors: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(self.faces, dtype=np.int64)
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3:
+            raise NerfEditError(f"mesh vertices: expected shape (V,3), got {self.vertices.shape}")
+        if self.faces.ndim != 2 or self.faces.shape[1] != 3:
+            raise NerfEditError(f"mesh faces: expected triangles (F,3), got {self.faces.shape}")
+        if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
+            raise NerfEditError("mesh faces: vertex index out of range")
+        if not np.isfinite(self.vertices).all():
+            raise NerfEditError("mesh vertices: contain NaN or Inf")
+        if self.vertex_colors is not None:
+            colors = np.asarray(self.vertex_colors, dtype=np.float64)
+            if colors.max(initial=0.0) > 1.0:
+                colors = colors / 255.0
+            self.vertex_colors = np.ascontiguousarray(colors[:, :3])
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def bbox_diagonal(self) -> float:
+        return float(np.linalg.norm(self.vertices.max(0) - self.vertices.min(0)))
+
+    def with_vertices(self, vertices: np.ndarray) -> "SurfaceMesh":
+        """Same connectivity and colours, new positions."""
+        return SurfaceMesh(vertices, self.faces, self.vertex_colors)
+
+    def largest_component(self) -> "SurfaceMesh":
+        """The connected part (through shared vertices) with the most faces; unused vertices dropped, order kept."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        n, f = self.n_vertices, len(self.faces)
+        rows = np.repeat(np.arange(f), 3)
+        incidence = coo_matrix((np.ones(3 * f), (rows, self.faces.reshape(-1))), shape=(f, n)).tocsr()
+        _, labels = connected_components(incidence @ incidence.T, directed=False)
+        faces = self.faces[labels == np.bincount(labels).argmax()]
+        used = np.unique(faces)
+        remap = np.full(n, -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        colors = None if self.vertex_colors is None else self.vertex_colors[used]
+        return SurfaceMesh(self.vertices[used], remap[faces], colors)
+
+    # ---- conversions -------------------------------------------------------------------------
+    def to_trimesh(self):
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, vertex_colors=self.vertex_colors, process=False)
+
+    @classmethod
+    def from_trimesh(cls, mesh) -> "SurfaceMesh":
+        colors = None
+        visual = getattr(mesh, "visual", None)
+        if visual is not None and getattr(visual, "kind", None) == "vertex":
+            colors = np.asarray(visual.vertex_colors)[:, :3] / 255.0
+        return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), colors)
+
+    def to_open3d(self):
+        import open3d as o3d
+
+        mesh = o3d.geometry.TriangleMesh(
+            o3d.utility.Vector3dVector(self.vertices), o3d.utility.Vector3iVector(self.faces.astype(np.int32))
+        )
+        if self.vertex_colors is not None:
+            mesh.vertex_colors = o3d.utility.Vector3dVector(self.vertex_colors)
+        return mesh
+
+    @classmethod
+    def from_open3d(cls, mesh) -> "SurfaceMesh":
+        colors = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else None
+        return cls(np.asarray(mesh.vertices), np.asarray(mesh.triangles), colors)
+
+    # ---- files -------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "SurfaceMesh":
+        """Read PLY/OBJ/OFF/GLB/STL keeping the file's vertex order; ``sample:bunny`` names a shipped sample."""
+        import trimesh
+
+        path = resolve_mesh_path(path)
+        if not path.is_file():
+            raise NerfEditError(f"{path}: mesh file not found")
+        try:
+            try:  # keep the file's vertex order (OBJ otherwise splits/reorders vertices by texture coordinate)
+                loaded = trimesh.load(path, process=False, force="mesh", maintain_order=True)
+            except IndexError:  # trimesh cannot keep order for some textured OBJ files
+                loaded = trimesh.load(path, process=False, force="mesh")
+        except Exception as exc:  # trimesh raises many types for corrupt files
+            raise NerfEditError(f"{path}: cannot read mesh ({exc})") from exc
+        if not hasattr(loaded, "faces") or len(loaded.faces) == 0:
+            raise NerfEditError(f"{path}: no triangles in file")
+        return cls.from_trimesh(loaded)
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write atomically; format from the suffix."""
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            self.to_trimesh().export(tmp, file_type=path.suffix.lstrip(".").lower())

@@ -1,0 +1,166 @@
+"""A run folder: one trained field and what it was trained on (DESIGN.md §4).
+
+``RUN_DIR/config.yml``  ``{"field": backend name, "data": the dataset or mesh, relative to RUN_DIR (a run and
+                        its data moved together stay valid), "field_config": the backend's full config}``
+``RUN_DIR/field.pt``    the checkpoint (:mod:`nerfedit_plugin.io.checkpoint`)
+``RUN_DIR/log.json``    training log (loss/PSNR per step, held-out PSNR-vs-time), when the backend trains
+``RUN_DIR/mesh.ply``    written by :func:`extract_mesh` (``nerfedit extract``)
+
+A run is written atomically (never half a run on disk); ``mesh.ply`` is added atomically afterwards. Backends whose
+``Field.data == "mesh"`` are built from a mesh file with ``from_mesh``; the others ``fit`` an image dataset (the
+``test`` split, else ``val``, is used for the held-out PSNR curve).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
+from nerfedit_plugin.io.checkpoint import load_field, save_field
+from nerfedit_plugin.config import to_plain, write_config
+from nerfedit_plugin.data.datasets import Dataset, load_dataset, read_transforms, transforms_file
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.registry import FIELDS, Registry, discover
+
+CONFIG, CHECKPOINT, LOG, MESH = "config.yml", "field.pt", "log.json", "mesh.ply"
+
+
+def default_device() -> torch.device:
+    """CUDA when present, else the CPU."""
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+@dataclass
+class Run:
+    """An opened run folder (see the module docstring)."""
+
+    path: Path
+    backend: str
+    data: Path
+    config: dict
+
+    @property
+    def mesh_path(self) -> Path:
+        return self.path / MESH
+
+    def field(self, device: torch.device | str | None = None, registry: Registry | None = None) -> Field:
+        """The trained field, on ``device`` (default: CUDA when present)."""
+        return load_field(self.path / CHECKPOINT, registry, backend=self.backend, device=device or default_device())
+
+    def mesh(self) -> SurfaceMesh:
+        """The extracted mesh; an error naming the run when ``nerfedit extract`` has not been run."""
+        if not self.mesh_path.is_file():
+            raise NerfEditError(f"{self.path}: no {MESH} in the run (run `nerfedit extract --run {self.path}` first)")
+        return SurfaceMesh.load(self.mesh_path)
+
+    def camera_distance(self) -> float | None:
+        """Mean distance of the training cameras to the centre of the dataset's scene box (``None`` for runs built
+        from a mesh): it sets the proxy's cage offset (5 %, as in the paper)."""
+        if _is_mesh_file(self.data):
+            return None
+        transforms = read_transforms(self.data, "train")
+        centers = transforms.cameras.c2w[:, :3, 3].double()
+        box = transforms.meta.get("aabb")
+        center = torch.tensor(box, dtype=torch.float64).mean(0) if box is not None else centers.mean(0)
+        return float(torch.linalg.norm(centers - center, dim=1).mean())
+
+
+def open_run(path: str | os.PathLike) -> Run:
+    """Read ``RUN_DIR/config.yml``; a folder that is not a run is an error naming it."""
+    path = Path(path)
+    file = path / CONFIG
+    if not file.is_file():
+        raise NerfEditError(f"{path}: not a run folder (no {CONFIG}; make one with `nerfedit train`)")
+    try:
+        config = yaml.safe_load(file.read_text())
+    except yaml.YAMLError as exc:
+        raise NerfEditError(f"{file}: not valid YAML ({exc})") from exc
+    if not isinstance(config, dict) or not isinstance(config.get("field"), str) or "data" not in config:
+        raise NerfEditError(f"{file}: expected the keys 'field' and 'data' of a run written by `nerfedit train`")
+    return Run(path, config["field"], (path / config["data"]).resolve(), config)
+
+
+def _is_mesh_file(data: Path) -> bool:
+    """A file that is not a transforms JSON: the mesh a ``data == "mesh"`` field is built from."""
+    return data.is_file() and data.suffix != ".json"
+
+
+def _eval_split(data: Path) -> Dataset | None:
+    for split in ("test", "val"):
+        try:
+            transforms_file(data, split)
+        except NerfEditError:
+            continue
+        return load_dataset(data, split)
+    return None
+
+
+def train_run(
+    backend: str,
+    config: FieldConfig,
+    data: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    device: torch.device | str | None = None,
+    registry: Registry | None = None,
+    record: Any = None,
+) -> tuple[Run, dict]:
+    """Build (``data`` = mesh file, mesh backends) or train (``data`` = dataset folder) the field ``backend`` with
+    ``config`` and write the run folder ``out`` atomically. ``record`` (default: the config) goes to config.yml
+    under ``command``. Returns the run and the training log."""
+    registry = discover() if registry is None else registry
+    if registry.config_class(FIELDS, backend) is not type(config):
+        raise NerfEditError(f"field: the config {type(config).__name__} is not the {backend!r} backend's")
+    data = Path(data).resolve()
+    target = config._target
+    device = torch.device(device) if device is not None else default_device()
+    if target.data == "mesh":
+        if not data.is_file():
+            raise NerfEditError(f"{data}: the {backend!r} field is built from a mesh file (PLY/OBJ/OFF/GLB)")
+        field, log = target.from_mesh(SurfaceMesh.load(data), config).to(device), {}
+    else:
+        if _is_mesh_file(data):
+            raise NerfEditError(f"{data}: the {backend!r} field trains on a dataset folder or transforms file")
+        train = load_dataset(data, "train").to(device)
+        evaluation = _eval_split(data)
+        field = config.setup(scene_bbox=train.scene_bbox)
+        field = field.to(device)
+        log = field.fit(train, eval_dataset=None if evaluation is None else evaluation.to(device))
+    plain = {"field": backend, "data": os.path.relpath(data, Path(out).resolve()), "field_config": config}
+    if record is not None:
+        plain["command"] = record
+    with atomic_dir(out, overwrite) as stage:
+        save_field(field, stage / CHECKPOINT, registry)
+        write_config(stage / CONFIG, plain)
+        if log:
+            (stage / LOG).write_text(json.dumps(to_plain(log)))
+    return open_run(out), log
+
+
+def extract_mesh(run: Run, resolution: int = 256, level: float | None = None, *, largest_component: bool = True,
+                 overwrite: bool = False, device: torch.device | str | None = None) -> Path:
+    """Extract the run's mesh (marching cubes for trained fields; the mesh itself for mesh fields) into
+    ``RUN_DIR/mesh.ply``, atomically; an existing mesh is replaced only with ``overwrite``. ``largest_component``
+    drops floaters of trained fields (a mesh field's mesh is always kept whole, in its vertex order)."""
+    if run.mesh_path.exists() and not overwrite:
+        raise NerfEditError(f"{run.mesh_path}: exists (pass --overwrite to extract again)")
+    field = run.field(device)
+    try:
+        mesh = field.extract_mesh(resolution, level)
+    except ValueError as exc:  # e.g. the level lies outside the field's range
+        raise NerfEditError(f"{run.path}: {exc}") from exc
+    if largest_component and field.data != "mesh":
+        mesh = mesh.largest_component()
+    with atomic_path(run.mesh_path) as tmp:
+        mesh.save(tmp)
+    return run.mesh_path

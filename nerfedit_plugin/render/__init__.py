@@ -1,0 +1,1 @@
+"""Rendering: the shared volume renderer (with optional ray bending) and writing rendered views to files."""

@@ -1,0 +1,95 @@
+"""Render a field (optionally bent by a DeformationField) from a set of cameras into image files.
+
+Images are composited over the render config's background and written as 8-bit RGB PNGs, atomically (the whole
+folder appears at once). :func:`turntable_cameras` places cameras on a circle around the scene box for
+:func:`write_gif` animations.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
+from nerfedit_plugin.data.cameras import Cameras, look_at
+from nerfedit_plugin.fields.base import Field
+from nerfedit_plugin.render.renderer import RenderConfig, render_image
+
+
+def default_render_config(field: Field, background=(1.0, 1.0, 1.0)) -> RenderConfig:
+    """Render with as many samples per ray as the field was trained with (``config.train.n_samples``, the samples its
+    held-out PSNR was measured with), else the renderer's default."""
+    samples = getattr(getattr(field.config, "train", None), "n_samples", RenderConfig.n_samples)
+    return RenderConfig(n_samples=int(samples), background=tuple(background))
+
+
+def render_views(
+    field: Field,
+    cameras: Cameras,
+    config: RenderConfig,
+    *,
+    deformation=None,
+    frame: int = 0,
+    supersample: int = 1,
+    progress: bool = True,
+) -> list[np.ndarray]:
+    """Render every camera → list of ``(H,W,3)`` float32 arrays in [0,1] (a rich progress bar when ``progress``)."""
+    from rich.progress import Progress
+
+    images = []
+    with Progress(transient=True, disable=not progress) as bar:
+        task = bar.add_task("rendering", total=len(cameras))
+        for i in range(len(cameras)):
+            image = render_image(field, cameras, i, config, deformation=deformation, frame=frame,
+                                 supersample=supersample)
+            images.append(image.clamp(0.0, 1.0).cpu().numpy())
+            bar.advance(task)
+    return images
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def write_images(images: Sequence[np.ndarray], names: Sequence[str], out_dir: str | os.PathLike,
+                 overwrite: bool = False) -> list[Path]:
+    """Write ``images`` as ``out_dir/<name>`` PNGs; the folder is created atomically."""
+    import skimage.io
+
+    with atomic_dir(out_dir, overwrite) as stage:
+        for image, name in zip(images, names):
+            skimage.io.imsave(stage / name, to_uint8(image), check_contrast=False)
+    return [Path(out_dir) / name for name in names]
+
+
+def write_gif(path: str | os.PathLike, images: Sequence[np.ndarray], fps: float = 12.0) -> Path:
+    """An endlessly looping GIF of ``images`` at ``fps`` frames per second (Pillow), written atomically."""
+    from PIL import Image
+
+    frames = [Image.fromarray(to_uint8(image)) for image in images]
+    with atomic_path(path) as tmp:
+        frames[0].save(tmp, save_all=True, append_images=frames[1:], duration=round(1000.0 / fps), loop=0)
+    return Path(path)
+
+
+def turntable_cameras(
+    scene_bbox: torch.Tensor, n: int, size: int, *, elevation_degrees: float = 20.0, distance: float = 2.5,
+    fov_degrees: float | None = None, up: Sequence[float] = (0.0, 0.0, 1.0),
+) -> Cameras:
+    """``n`` cameras on a circle around the centre of ``scene_bbox`` (z up), ``distance`` × the box's half-diagonal
+    away, ``elevation_degrees`` above its equator, each ``size``×``size`` pixels; the default field of view frames
+    the box's bounding ball."""
+    box = torch.as_tensor(scene_bbox, dtype=torch.float64).cpu()
+    center, radius = box.mean(0), float(torch.linalg.norm(box[1] - box[0]) / 2)
+    angles = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
+    elevation = math.radians(elevation_degrees)
+    ring = torch.stack([torch.cos(angles) * math.cos(elevation), torch.sin(angles) * math.cos(elevation),
+                        torch.full_like(angles, math.sin(elevation))], dim=1)
+    eyes = center + distance * radius * ring
+    fov = math.radians(fov_degrees) if fov_degrees is not None else 2.0 * math.asin(1.0 / distance)
+    return Cameras.from_fov(look_at(eyes, center.expand(n, 3), up), size, size, fov)

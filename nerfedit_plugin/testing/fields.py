@@ -1,0 +1,192 @@
+"""Conformance kit for field plugins (group ``nerfedit.fields``), the counterpart of :mod:`nerfedit_plugin.testing.deformers`.
+
+A field author calls it from their own pytest module::
+
+    from nerfedit_plugin.testing.fields import check_field
+
+    def test_conformance():
+        check_field(MyFieldConfig())
+
+Checks (each a public function taking the built field or its config; :func:`check_field` runs them all):
+``config`` (dataclass with a docstring per field, lossless YAML round trip, ``_target`` a Field subclass with a
+valid ``kind``/``data``), ``query`` (shapes, dtypes, device, finite values, colours in [0,1], densities ≥ 0,
+deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None), ``checkpoint`` (save → load through the registry gives the same
+queries; another backend's name is refused), ``identity`` (rendering through an identity DeformationField equals
+the unedited render — the renderer's contract for every backend) and ``extract`` (a SurfaceMesh inside the scene
+box, or a ValueError when the level is outside the field's range).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+import torch
+
+from nerfedit_plugin.data.cameras import Cameras, look_at
+from nerfedit_plugin.io.checkpoint import backend_name, load_field
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.render.renderer import RenderConfig, render_image
+from nerfedit_plugin.testing.deformers import check_documented_round_trip, default_mesh
+
+BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+"""Scene box of fields built from a config by the kit."""
+
+
+def coloured_mesh() -> SurfaceMesh:
+    """The kit's mesh for mesh-built fields: :func:`nerfedit_plugin.testing.deformers.default_mesh` scaled into :data:`BOX`,
+    coloured by position."""
+    mesh = default_mesh()
+    v = mesh.vertices - mesh.vertices.mean(0)
+    v = 0.8 * v / np.abs(v).max()
+    return SurfaceMesh(v, mesh.faces, (v + 1.0) / 2.0)
+
+
+def build_field(config: FieldConfig) -> Field:
+    """The field the kit tests: ``from_mesh(coloured_mesh())`` for ``data == "mesh"``, else
+    ``config.setup(scene_bbox=BOX)`` (the backend's initial state)."""
+    target = config._target
+    if target.data == "mesh":
+        return target.from_mesh(coloured_mesh(), config)
+    return config.setup(scene_bbox=BOX.clone())
+
+
+def _probe(n: int = 2000, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    points = BOX[0] - 0.2 + torch.rand(n, 3, generator=g) * (BOX[1] - BOX[0] + 0.4)
+    return points, torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+
+
+def check_config(config: Any) -> None:
+    """A FieldConfig dataclass, a docstring per field, a lossless YAML round trip, a Field ``_target``."""
+    name = type(config).__name__
+    assert dataclasses.is_dataclass(config) and isinstance(config, FieldConfig), (
+        f"{name}: a field config must be a dataclass subclassing nerfedit_plugin.fields.base.FieldConfig")
+    target = config._target
+    assert isinstance(target, type) and issubclass(target, Field), f"{name}._target is {target!r}, not a Field"
+    assert target.kind in ("density", "sdf"), f"{target.__name__}.kind must be 'density' or 'sdf', not {target.kind!r}"
+    assert target.data in ("images", "mesh"), f"{target.__name__}.data must be 'images' or 'mesh', not {target.data!r}"
+    if target.data == "mesh":
+        assert callable(getattr(target, "from_mesh", None)), f"{target.__name__}: data='mesh' needs from_mesh()"
+    check_documented_round_trip(config)
+
+
+def _same_queries(a: Field, b: Field, what: str) -> None:
+    points, dirs = _probe()
+    with torch.no_grad():
+        for x, y, out in zip(a.query(points, dirs), b.query(points, dirs), ("density/sdf", "rgb")):
+            assert torch.equal(x, y), f"{type(a).__name__}: {what} changes the {out} of query()"
+
+
+def check_query(field: Field) -> None:
+    """``query`` returns ``(M,)`` and ``(M,3)`` float tensors on the points' device, finite, rgb in [0,1],
+    density ≥ 0 (density fields), the same twice (and for any direction unless ``view_dependent``); ``occupied`` is
+    None or an ``(M,)`` bool mask."""
+    name = type(field).__name__
+    points, dirs = _probe()
+    with torch.no_grad():
+        value, rgb = field.query(points, dirs)
+    assert value.shape == (len(points),) and rgb.shape == (len(points), 3), (
+        f"{name}.query: expected shapes (M,) and (M,3), got {tuple(value.shape)} and {tuple(rgb.shape)}")
+    assert value.dtype.is_floating_point and rgb.dtype.is_floating_point, f"{name}.query: outputs must be float"
+    assert value.device == points.device and rgb.device == points.device, f"{name}.query: outputs on another device"
+    assert torch.isfinite(value).all() and torch.isfinite(rgb).all(), f"{name}.query: non-finite outputs"
+    assert rgb.min() >= 0 and rgb.max() <= 1, f"{name}.query: colours outside [0, 1]"
+    if field.kind == "density":
+        assert value.min() >= 0, f"{name}.query: negative density"
+    _same_queries(field, field, "querying again")
+    if not field.view_dependent:
+        turned = torch.nn.functional.normalize(torch.randn(dirs.shape, generator=torch.Generator().manual_seed(1)), dim=-1)
+        with torch.no_grad():
+            assert all(torch.equal(x, y) for x, y in zip(field.query(points, dirs), field.query(points, turned))), (
+                f"{name}.query: the colour depends on the direction, but view_dependent is False")
+    occupied = field.occupied(points)
+    assert occupied is None or (occupied.dtype == torch.bool and occupied.shape == (len(points),)), (
+        f"{name}.occupied: expected None or an (M,) bool mask")
+
+
+def check_checkpoint(field: Field) -> None:
+    """``save`` then ``load_field`` (through the registry) rebuilds a field with the same queries; loading it as
+    another backend is refused with a NerfEditError."""
+    name = backend_name(type(field.config))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "field.pt"
+        field.save(path)
+        loaded = load_field(path, backend=name)
+        assert type(loaded) is type(field), f"{name}: loaded a {type(loaded).__name__}"
+        _same_queries(field, loaded, "a checkpoint round trip")
+        try:
+            load_field(path, backend=name + "-other")
+        except NerfEditError:
+            pass
+        else:
+            raise AssertionError(f"{name}: a checkpoint loaded as another backend without an error")
+
+
+def _cube_tets(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The box ``[low, high]`` as 6 positively oriented Kuhn tets."""
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.float64)
+    vertices = low + corners * (high - low)
+    paths = [(4, 2, 1), (4, 1, 2), (2, 4, 1), (2, 1, 4), (1, 4, 2), (1, 2, 4)]  # axis-step orders (bit values)
+    tets = np.array([[0, a, a + b, 7] for a, b, _ in paths])
+    volumes = np.einsum("ij,ij->i", np.cross(vertices[tets[:, 1]] - vertices[tets[:, 0]],
+                                             vertices[tets[:, 2]] - vertices[tets[:, 0]]),
+                        vertices[tets[:, 3]] - vertices[tets[:, 0]])
+    tets[volumes < 0] = tets[volumes < 0][:, [0, 2, 1, 3]]
+    return vertices, tets
+
+
+def check_identity(field: Field, size: int = 24) -> None:
+    """Rendering through an identity DeformationField (a box proxy around part of the scene) equals the unedited
+    render of the same camera."""
+    box = field.scene_bbox.detach().cpu().double().numpy()
+    centre, half = box.mean(0), (box[1] - box[0]) / 2
+    vertices, tets = _cube_tets(centre - 0.6 * half, centre + 0.3 * half)
+    identity = DeformationField.identity(vertices, tets)
+    eye = torch.from_numpy(centre + 3.0 * np.linalg.norm(half) * np.array([0.6, -0.5, 0.62]))
+    c2w = look_at(eye[None], torch.from_numpy(centre)[None]).to(field.scene_bbox.device)
+    camera = Cameras.from_fov(c2w, size, size, 0.7)
+    config = RenderConfig(n_samples=64)
+    with torch.no_grad():
+        plain = render_image(field, camera, 0, config)
+        bent = render_image(field, camera, 0, config, deformation=identity)
+    error = float((plain - bent).abs().max())
+    assert error < 1e-4, f"{type(field).__name__}: the identity deformation changes the render (max error {error:.2e})"
+
+
+def check_extract(field: Field, resolution: int = 24) -> None:
+    """``extract_mesh`` returns a SurfaceMesh with faces and vertices within the scene box, or raises ValueError
+    (no surface at the level)."""
+    try:
+        mesh = field.extract_mesh(resolution)
+    except ValueError:
+        return
+    name = type(field).__name__
+    assert isinstance(mesh, SurfaceMesh) and len(mesh.faces) > 0, f"{name}.extract_mesh: expected a SurfaceMesh"
+    box = field.scene_bbox.detach().cpu().double().numpy()
+    slack = 1e-6 * np.linalg.norm(box[1] - box[0])
+    assert (mesh.vertices >= box[0] - slack).all() and (mesh.vertices <= box[1] + slack).all(), (
+        f"{name}.extract_mesh: vertices outside the scene box")
+
+
+CHECKS = ("config", "query", "checkpoint", "identity", "extract")
+
+
+def check_field(config: FieldConfig, *, skip: Iterable[str] = ()) -> None:
+    """Run every check on ``config`` and the field :func:`build_field` makes of it, except those in ``skip``."""
+    skip = set(skip)
+    if skip - set(CHECKS):
+        raise ValueError(f"unknown checks in skip: {sorted(skip - set(CHECKS))} (known: {list(CHECKS)})")
+    if "config" not in skip:
+        check_config(config)
+    field = build_field(config)
+    for name, check in (("query", check_query), ("checkpoint", check_checkpoint), ("identity", check_identity),
+                        ("extract", check_extract)):
+        if name not in skip:
+            check(field)

@@ -1,0 +1,1 @@
+"""Training: the shared optimisation loop of image-trained fields, and image metrics."""

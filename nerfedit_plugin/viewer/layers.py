@@ -1,0 +1,148 @@
+"""Open3D viewer of an edit: rest and deformed mesh, tet proxy, cage and handles — in a window or headless.
+
+An edit folder (``nerfedit edit --out EDIT_DIR``) supplies the deformed mesh, ``deformation.npz`` (rest and
+deformed proxy), the cages a cage deformer wrote and the spec's handles. Deformed geometry is shifted along +x by
+``1.2 ×`` the rest bounding box width so rest and edit sit side by side. Windows need a display
+(``draw_geometries``); :func:`screenshot` renders offscreen with the legacy ``Visualizer(visible=False)`` (EGL when
+no display is present) and writes a PNG.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import yaml
+
+from nerfedit_plugin.io.atomic import atomic_path
+from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.edit.spec import load_edit_spec
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.registry import DEFORMERS, discover
+
+LAYERS = ("mesh", "deformed", "proxy", "deformed-proxy", "cage", "handles")
+FIXED, MOVED = (0.15, 0.35, 0.95), (0.95, 0.2, 0.15)
+
+
+def _triangles(mesh: SurfaceMesh, color: Sequence[float] | None = None):
+    out = mesh.to_open3d()
+    out.compute_vertex_normals()
+    if color is not None or mesh.vertex_colors is None:
+        out.paint_uniform_color(color or (0.75, 0.75, 0.72))
+    return out
+
+
+def _edges(vertices: np.ndarray, tets_or_faces: np.ndarray, color: Sequence[float]):
+    """LineSet of the unique edges of tets ``(K,4)`` or triangles ``(F,3)``."""
+    import open3d as o3d
+
+    k = tets_or_faces.shape[1]
+    pairs = np.concatenate([tets_or_faces[:, [i, j]] for i in range(k) for j in range(i + 1, k)])
+    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
+    lines = o3d.geometry.LineSet(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector2iVector(pairs))
+    lines.paint_uniform_color(color)
+    return lines
+
+
+def _handles(spec_path: Path, deformer: str, points_of_handles: np.ndarray):
+    """Point cloud of the spec's handle selections on ``points_of_handles`` (the rest mesh's vertices, or the rest
+    cage's for a cage edit), fixed blue, moved red; None when the spec has no handles."""
+    import open3d as o3d
+
+    spec = load_edit_spec(spec_path, discover().config_class(DEFORMERS, deformer)()._target.spec_keys)
+    if not spec.handles:
+        return None
+    points, colors = [], []
+    for handle in spec.handles:
+        idx = handle.selection.indices(points_of_handles, spec.source)
+        points.append(points_of_handles[idx])
+        colors.append(np.tile(FIXED if handle.transform is None else MOVED, (len(idx), 1)))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate(points)))
+    cloud.colors = o3d.utility.Vector3dVector(np.concatenate(colors))
+    return cloud
+
+
+def edit_geometries(mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None, frame: int = 0,
+                    layers: Iterable[str] = LAYERS) -> list:
+    """The Open3D geometries of ``layers`` (see :data:`LAYERS`) for a rest ``mesh`` and an optional edit folder;
+    layers the folder does not hold (e.g. ``cage`` of an ARAP edit) are left out."""
+    layers = set(layers)
+    unknown = layers - set(LAYERS)
+    if unknown:
+        raise NerfEditError(f"show: unknown layer(s) {', '.join(sorted(unknown))} (choose from {', '.join(LAYERS)})")
+    shift = np.array([1.2 * float(np.ptp(mesh.vertices[:, 0])), 0.0, 0.0])
+    out = [_triangles(mesh)] if "mesh" in layers else []
+    if edit_dir is None:
+        return out
+    edit_dir = Path(edit_dir)
+    config_file = edit_dir / "config.yml"
+    if not config_file.is_file():
+        raise NerfEditError(f"{edit_dir}: not an edit folder (no config.yml; make one with `nerfedit edit`)")
+    record = yaml.safe_load(config_file.read_text()) or {}
+    meshes = sorted(edit_dir.glob("deformed_mesh*.ply"))
+    if not 0 <= frame < len(meshes):
+        raise NerfEditError(f"frame: {frame} out of range for the {len(meshes)} deformed mesh(es) in {edit_dir}")
+    if "deformed" in layers:
+        deformed = SurfaceMesh.load(meshes[frame])
+        out.append(_triangles(deformed.with_vertices(deformed.vertices + shift)))
+    if layers & {"proxy", "deformed-proxy"} and (edit_dir / "deformation.npz").is_file():
+        field = DeformationField.load(edit_dir / "deformation.npz")
+        if "proxy" in layers:
+            out.append(_edges(field.rest_vertices, field.tets, (0.55, 0.55, 0.6)))
+        if "deformed-proxy" in layers:
+            out.append(_edges(field.deformed_vertices[frame] + shift, field.tets, (0.9, 0.55, 0.2)))
+    cage = SurfaceMesh.load(edit_dir / "cage_rest.ply") if (edit_dir / "cage_rest.ply").is_file() else None
+    if "cage" in layers and cage is not None:
+        out.append(_edges(cage.vertices, cage.faces, (0.2, 0.6, 0.3)))
+        posed = sorted(edit_dir.glob("cage_deformed*.ply"))
+        if posed:
+            moved = SurfaceMesh.load(posed[min(frame, len(posed) - 1)])
+            out.append(_edges(moved.vertices + shift, moved.faces, (0.2, 0.6, 0.3)))
+    spec = Path(str(record.get("edit", ""))).name
+    if "handles" in layers and spec and (edit_dir / spec).is_file():
+        handles = _handles(edit_dir / spec, str(record.get("deformer", "arap")),
+                           mesh.vertices if cage is None else cage.vertices)  # cage handles grab cage vertices
+        out += [handles] if handles is not None else []
+    return out
+
+
+def screenshot(geometries: list, path: str | os.PathLike, width: int = 960, height: int = 540,
+               up: Sequence[float] = (0.0, 1.0, 0.0), front: Sequence[float] = (0.3, 0.2, 1.0)) -> Path:
+    """Render ``geometries`` offscreen (no display needed) and write the PNG atomically."""
+    import open3d as o3d
+
+    if not geometries:
+        raise NerfEditError("show: nothing to draw")
+    vis = o3d.visualization.Visualizer()
+    if not vis.create_window(visible=False, width=width, height=height):
+        raise NerfEditError("screenshot: Open3D could not create an offscreen window (no display and no EGL)")
+    try:
+        for geometry in geometries:
+            vis.add_geometry(geometry)
+        view = vis.get_view_control()
+        view.set_up(list(up))
+        view.set_front(list(front))
+        view.set_zoom(0.7)
+        vis.get_render_option().point_size = 6.0
+        vis.poll_events()
+        vis.update_renderer()
+        image = np.asarray(vis.capture_screen_float_buffer(do_render=True))
+    finally:
+        vis.destroy_window()
+    import skimage.io
+
+    with atomic_path(path) as tmp:
+        skimage.io.imsave(tmp, np.round(np.clip(image, 0, 1) * 255).astype(np.uint8), check_contrast=False)
+    return Path(path)
+
+
+def show(geometries: list, title: str = "nerfedit") -> None:
+    """Open an interactive Open3D window (needs a display)."""
+    import open3d as o3d
+
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise NerfEditError("view: no display (set DISPLAY, or pass --screenshot PNG to render offscreen)")
+    o3d.visualization.draw_geometries(geometries, window_name=title)
