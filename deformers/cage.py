@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 import tyro
 
-from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -248,6 +248,22 @@ class CageDeformer(Deformer):
             self.rest_cage.with_vertices(pose).save(out_dir / name)
             written.append(out_dir / name)
         return written
+
+    @classmethod
+    def overlays(cls, edit_dir: Path, frame: int) -> list[Overlay]:
+        """The rest cage and the cage of ``frame``, as :meth:`write_artifacts` wrote them."""
+        rest = Path(edit_dir) / "cage_rest.ply"
+        if not rest.is_file():
+            return []
+        posed = sorted(Path(edit_dir).glob("cage_deformed*.ply"))
+        cage = SurfaceMesh.load(rest)
+        return [Overlay("cage", cage, SurfaceMesh.load(posed[min(frame, len(posed) - 1)]) if posed else None)]
+
+    @classmethod
+    def handle_points(cls, edit_dir: Path, rest: SurfaceMesh) -> np.ndarray:
+        """Handles grab the rest cage's vertices."""
+        cage = Path(edit_dir) / "cage_rest.ply"
+        return SurfaceMesh.load(cage).vertices if cage.is_file() else rest.vertices
 
     # ---- conformance-kit hooks ---------------------------------------------------------------------------------
     @classmethod

@@ -369,7 +369,9 @@ class SkeletonDeformer(Deformer):
     def _skin(self, binding: Binding, frame: int) -> np.ndarray:
         return skin(binding, self.rot[frame], self.trans[frame], self.config.method)
 
-    def write_artifacts(self, folder: Path) -> None:
+    def write_artifacts(self, out_dir: Path) -> list[Path]:
         """Save the skinning weights used (``skin_weights.npy``, V × joints) so they can be edited and reused."""
-        with atomic_path(Path(folder) / "skin_weights.npy") as tmp:
+        path = Path(out_dir) / "skin_weights.npy"
+        with atomic_path(path) as tmp:
             np.save(tmp, self.weights)
+        return [path]

@@ -2,7 +2,8 @@
 
 Each entry point names a config class (a dataclass subclass of the group's base config whose ``_target`` is a
 subclass of the group's base class). A plugin that fails to import or has the wrong shape is recorded in
-``Registry.skipped`` with the reason and never stops discovery.
+``Registry.skipped`` with the reason and never stops discovery. The registry names the contract classes by their
+import path, as entry points name plugins, so it depends on no stage (the contracts may use it).
 """
 
 from __future__ import annotations
@@ -11,15 +12,25 @@ import dataclasses
 from dataclasses import dataclass, field
 from importlib import metadata
 
-from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
+import importlib
+
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.fields.base import Field, FieldConfig
 
 DEFORMERS = "nerfedit.deformers"
 FIELDS = "nerfedit.fields"
 
-#: group -> (base config class, base target class)
-GROUPS: dict[str, tuple[type, type]] = {DEFORMERS: (DeformerConfig, Deformer), FIELDS: (FieldConfig, Field)}
+#: group -> (base config class, base target class), as ``module:attr`` import paths
+GROUPS: dict[str, tuple[str, str]] = {
+    DEFORMERS: ("nerfedit_plugin.edit.deformer:DeformerConfig", "nerfedit_plugin.edit.deformer:Deformer"),
+    FIELDS: ("nerfedit_plugin.fields.base:FieldConfig", "nerfedit_plugin.fields.base:Field"),
+}
+
+
+def _resolve(path: str | type) -> type:
+    if isinstance(path, type):
+        return path
+    module, attr = path.split(":")
+    return getattr(importlib.import_module(module), attr)
 
 
 @dataclass(frozen=True)
@@ -74,10 +85,13 @@ def _check_shape(obj: object, base_config: type, base_target: type) -> str | Non
     return None
 
 
-def discover(groups: dict[str, tuple[type, type]] | None = None) -> Registry:
-    """Load every entry point of the known groups; record the broken ones instead of raising."""
+def discover(*groups: str, bases: dict[str, tuple[type | str, type | str]] | None = None) -> Registry:
+    """Load every entry point of ``groups`` (default: all of :data:`GROUPS`); record the broken ones instead of
+    raising. ``bases`` overrides the contract classes of a group (tests of the registry itself)."""
+    bases = bases or GROUPS
     registry = Registry()
-    for group, (base_config, base_target) in (groups or GROUPS).items():
+    for group in groups or tuple(bases):
+        base_config, base_target = (_resolve(b) for b in bases[group])
         found = registry.plugins.setdefault(group, {})
         for ep in metadata.entry_points(group=group):
             dist = ep.dist.name if ep.dist is not None else "?"

@@ -1,19 +1,16 @@
 """The Deformer contract (entry-point group ``nerfedit.deformers``).
 
-A plugin ships a config dataclass (subclass of :class:`DeformerConfig`, ``_target`` = its :class:`Deformer`
-subclass, a docstring per field) and registers the *config class* under the entry point group, e.g.
-``[project.entry-points."nerfedit.deformers"] arap = "deformers.arap:ArapConfig"``.
-
 Life cycle: ``deformer = config.setup(); deformer.bind(rest, edit); frames = deformer.deform()``.
-Optional hooks (see docs/plugins.md): ``write_artifacts(out_dir) -> list[Path]`` (the CLI calls it to save cages,
-weights, …) and the classmethods ``identity_edit(edit, rest)`` / ``rigid_edit(edit, rest)`` used by the
-conformance kit ``nerfedit_plugin.testing.deformers.check_deformer``.
+Required: :meth:`Deformer.bind` and :meth:`Deformer.deform`. Every optional hook is declared here with its default;
+docs/plugins.md shows a whole plugin.
 """
 
 from __future__ import annotations
 
+import abc
 import dataclasses
-from typing import ClassVar
+from pathlib import Path
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -24,15 +21,26 @@ from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 @dataclasses.dataclass
 class DeformerConfig(InstantiateConfig):
-    """Base config of every deformer plugin."""
+    """Base config of every deformer plugin (the first line of a plugin's docstring is its description in
+    ``nerfedit edit --help``)."""
 
 
-class Deformer:
+@dataclasses.dataclass(frozen=True)
+class Overlay:
+    """Geometry a deformer adds to the viewer's layers (e.g. a cage): drawn at rest and, when given, deformed."""
+
+    layer: str
+    """Layer name the user toggles (``nerfedit view --show``)."""
+    rest: SurfaceMesh
+    deformed: SurfaceMesh | None = None
+    style: Literal["wire", "surface"] = "wire"
+
+
+class Deformer(abc.ABC):
     """Deforms a rest surface mesh according to an edit spec; output keeps vertex order and connectivity.
 
-    Subclasses set ``spec_keys`` (the top-level edit-spec keys besides ``frames`` they accept; any other key is
-    rejected by :func:`nerfedit_plugin.edit.spec.parse_edit_spec`) and implement :meth:`bind` and :meth:`deform`.
-    Deformers defined in space (cage, skeleton) also implement :meth:`deform_points`.
+    ``spec_keys``: the top-level edit-spec keys (besides ``frames``) the deformer accepts; any other key is
+    rejected by :func:`nerfedit_plugin.edit.spec.parse_edit_spec` before any work.
     """
 
     spec_keys: ClassVar[frozenset[str]] = frozenset({"handles"})
@@ -40,23 +48,54 @@ class Deformer:
     def __init__(self, config: DeformerConfig) -> None:
         self.config = config
 
+    # ---- required ------------------------------------------------------------------------------------------------
+    @abc.abstractmethod
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
-        """All precomputation (factorisations, weights, coordinates). Validates ``edit`` against ``rest``."""
-        raise NotImplementedError
+        """All precomputation (factorisations, weights, coordinates). Validates ``edit`` against ``rest`` and raises
+        :class:`nerfedit_plugin.errors.NerfEditError` naming the key on bad input."""
 
+    @abc.abstractmethod
     def deform(self) -> np.ndarray:
         """Deformed vertex positions ``(n_frames, V, 3)`` float64, same vertex order as the rest mesh.
 
         ``n_frames`` is the spec's ``frames`` when it sets one, else the deformer's own count (1 for a single
         pose; the clip length for a BVH, the file count for a mesh sequence).
         """
-        raise NotImplementedError
 
+    # ---- optional hooks --------------------------------------------------------------------------------------------
     def deform_points(self, points: np.ndarray, frame: int) -> np.ndarray:
-        """Map arbitrary rest-space points ``(M,3)`` to deformed space at ``frame`` (space deformers only)."""
+        """Space deformers (cage, skeleton): map rest-space ``points (M,3)`` to deformed space at ``frame`` → ``(M,3)``.
+        Enables ``--lift direct``. Default: not defined in space."""
         raise NotImplementedError(f"{type(self).__name__} is defined on the surface only")
 
     @classmethod
     def supports_points(cls) -> bool:
-        """True when the deformer overrides :meth:`deform_points` (so ``--lift direct`` is available)."""
+        """True when the deformer overrides :meth:`deform_points`."""
         return cls.deform_points is not Deformer.deform_points
+
+    def write_artifacts(self, out_dir: Path) -> list[Path]:
+        """Write extra files of a bound deformer into the edit folder ``out_dir`` (cages, weights) and return their
+        paths. Default: none."""
+        return []
+
+    @classmethod
+    def overlays(cls, edit_dir: Path, frame: int) -> list[Overlay]:
+        """What the viewer draws for an edit folder this deformer wrote (its artifacts) at ``frame``. Default: none."""
+        return []
+
+    @classmethod
+    def handle_points(cls, edit_dir: Path, rest: SurfaceMesh) -> np.ndarray:
+        """The points ``(P,3)`` the spec's handle selections grab, for the viewer. Default: the rest vertices."""
+        return rest.vertices
+
+    @classmethod
+    def identity_edit(cls, edit: dict, rest: SurfaceMesh) -> dict | None:
+        """Conformance kit: a variant of ``edit`` that must leave ``rest`` unchanged; ``None`` = let the kit derive
+        one from ``edit["handles"]`` (every transform a zero translation)."""
+        return None
+
+    @classmethod
+    def rigid_edit(cls, edit: dict, rest: SurfaceMesh) -> dict | None:
+        """Conformance kit: a variant of ``edit`` that must move ``rest`` rigidly; ``None`` = let the kit derive one
+        from ``edit["handles"]`` (every handle given one rigid motion)."""
+        return None

@@ -92,9 +92,7 @@ def run_edit(
                 rest.with_vertices(positions).save(stage / name)
             DeformationField(proxy.vertices, proxy.tets, lifted).save(stage / "deformation.npz")
             shutil.copyfile(edit, stage / Path(edit).name)
-            artifacts = getattr(model, "write_artifacts", None)
-            if callable(artifacts):
-                artifacts(stage)
+            model.write_artifacts(stage)
             write_config(stage / "config.yml", record if record is not None else {"deformer": deformer, "lift": lift})
         report = {
             "deformer": type(model).__name__,

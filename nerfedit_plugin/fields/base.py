@@ -1,13 +1,14 @@
 """The Field contract (entry-point group ``nerfedit.fields``): a radiance field in canonical space.
 
-A backend ships a config dataclass (subclass of :class:`FieldConfig`, ``_target`` = its :class:`Field` subclass) and
-registers the config class, e.g. ``nerf = "nerfedit_plugin.fields.nerf:NerfConfig"``. All rendering goes through
-the one shared renderer, which bends rays with an optional DeformationField before calling :meth:`Field.query`.
-(``fit`` rather than ``train``: ``torch.nn.Module.train`` already means "training mode".)
+Required: :meth:`Field.query` and :meth:`Field.extract_mesh`; image-trained fields (``data = "images"``) also
+:meth:`Field.fit`, mesh-built ones (``data = "mesh"``) :meth:`Field.from_mesh`. All rendering goes through the one
+shared renderer (:func:`nerfedit_plugin.render.renderer.render_image`), which bends rays before calling ``query``.
+(``fit``, not ``train``: ``torch.nn.Module.train`` already means "training mode".)
 """
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import os
 from typing import Any, ClassVar
@@ -16,14 +17,17 @@ import torch
 
 from nerfedit_plugin.config import InstantiateConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.checkpoint import load_field, save_field
+from nerfedit_plugin.registry import Registry
 
 
 @dataclasses.dataclass
 class FieldConfig(InstantiateConfig):
-    """Base config of every field backend."""
+    """Base config of every field backend (the first line of a backend's docstring is its description in
+    ``nerfedit train --help``)."""
 
 
-class Field(torch.nn.Module):
+class Field(torch.nn.Module, metaclass=abc.ABCMeta):
     """Density or SDF plus colour, queried at canonical points.
 
     ``kind`` tells the renderer how to turn the first output of :meth:`query` into opacity:
@@ -53,9 +57,21 @@ class Field(torch.nn.Module):
         renderer rotate view directions into canonical space along bent rays."""
         return True
 
+    @abc.abstractmethod
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``points (M,3)``, unit ``directions (M,3)`` in canonical space → ``(density_or_sdf (M,), rgb (M,3))``."""
-        raise NotImplementedError
+
+    @abc.abstractmethod
+    def extract_mesh(self, resolution: int = 256, level: float | None = None) -> SurfaceMesh:
+        """Marching cubes (scikit-image) of the density/SDF over ``scene_bbox`` at ``level`` → a vertex-coloured
+        :class:`SurfaceMesh` (the mesh itself for mesh-built fields)."""
+
+    # ---- optional hooks --------------------------------------------------------------------------------------------
+    @property
+    def render_samples(self) -> int | None:
+        """Samples per ray to render with (e.g. those the field was trained and evaluated with); ``None`` (default):
+        the renderer's default."""
+        return None
 
     def occupied(self, points: torch.Tensor) -> torch.Tensor | None:
         """Optional occupancy grid: ``(M,)`` bool, False where canonical ``points (M,3)`` are certainly empty (the
@@ -74,17 +90,14 @@ class Field(torch.nn.Module):
         """Marching cubes (scikit-image) of the density/SDF over ``scene_bbox`` at ``level``."""
         raise NotImplementedError
 
-    def save(self, path: str | os.PathLike) -> None:
-        """Checkpoint (``field.pt``): backend name, config and state dict, written atomically
-        (:func:`nerfedit_plugin.io.checkpoint.save_field`)."""
-        from nerfedit_plugin.io.checkpoint import save_field
-
-        save_field(self, path)
+    def save(self, path: str | os.PathLike, registry: Registry | None = None) -> None:
+        """Checkpoint (``field.pt``): backend name, config, scene box and state dict, written atomically
+        (format: :mod:`nerfedit_plugin.io.checkpoint`)."""
+        save_field(self, path, registry)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Field":
-        """Read a checkpoint written by :meth:`save`; a checkpoint of another backend, a missing or a corrupt file
-        raises :class:`nerfedit_plugin.errors.NerfEditError` naming the file."""
-        from nerfedit_plugin.io.checkpoint import load_field
-
-        return load_field(path, expected=None if cls is Field else cls)
+    def load(cls, path: str | os.PathLike, registry: Registry | None = None, *, backend: str | None = None,
+             device: torch.device | str = "cpu") -> "Field":
+        """Read a checkpoint written by :meth:`save`; ``Field.load`` takes any backend, ``Backend.load`` only its
+        own. A checkpoint of another backend, a missing or a corrupt file raises NerfEditError naming the file."""
+        return load_field(path, registry, backend=backend, expected=None if cls is Field else cls, device=device)

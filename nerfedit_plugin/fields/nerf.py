@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from typing import Any
 
 import torch
@@ -81,6 +80,11 @@ class NerfField(Field):
     def view_dependent(self) -> bool:
         return self.color.view_dependent
 
+    @property
+    def render_samples(self) -> int:
+        """The samples per ray of training (those the held-out PSNR was measured with)."""
+        return self.config.train.n_samples
+
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         values = self.grid(points)
         lo, hi = self.scene_bbox
@@ -137,8 +141,3 @@ class NerfField(Field):
         level = self.config.mesh_level if level is None else float(level)
         return extract_level_set(lambda x: self.query(x, torch.zeros_like(x))[0], lambda x, d: self.query(x, d)[1],
                                  self.scene_bbox, resolution, level)
-
-    def save(self, path: str | os.PathLike) -> None:
-        from nerfedit_plugin.io.checkpoint import save_field
-
-        save_field(self, path)

@@ -105,6 +105,11 @@ class NeusField(Field):
     def view_dependent(self) -> bool:
         return self.color.view_dependent
 
+    @property
+    def render_samples(self) -> int:
+        """The samples per ray of training (those the held-out PSNR was measured with)."""
+        return self.config.train.n_samples
+
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """SDF and colour; when ``points`` require grad, ``f`` carries the first-order term ``(x − x̄)·∇f(x̄)``
         (``x̄`` = detached ``x``; zero in value) so that autograd's ``∂f/∂x`` is the analytic gradient of the grid,

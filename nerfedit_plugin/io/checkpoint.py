@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 
 from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.config import from_plain, to_plain
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.fields.base import Field
 from nerfedit_plugin.registry import FIELDS, Registry, discover
+
+if TYPE_CHECKING:
+    from nerfedit_plugin.fields.base import Field
 
 CHECKPOINT_FORMAT = 1
 """Layout version of ``field.pt``."""
@@ -29,7 +31,7 @@ CHECKPOINT_FORMAT = 1
 
 def backend_name(config_class: type, registry: Registry | None = None) -> str:
     """The ``nerfedit.fields`` entry-point name registered for ``config_class``."""
-    registry = discover() if registry is None else registry
+    registry = discover(FIELDS) if registry is None else registry
     for name, plugin in registry.plugins.get(FIELDS, {}).items():
         if plugin.config_class is config_class:
             return name
@@ -83,7 +85,7 @@ def load_field(
     name = payload["backend"]
     if backend is not None and name != backend:
         raise NerfEditError(f"{path}: checkpoint of the {name!r} field backend, not {backend!r}")
-    registry = discover() if registry is None else registry
+    registry = discover(FIELDS) if registry is None else registry
     try:
         config_class = registry.config_class(FIELDS, name)
     except NerfEditError as exc:

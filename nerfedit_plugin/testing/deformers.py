@@ -142,8 +142,8 @@ def _frames(config: Any, rest: SurfaceMesh, edit: dict, base_dir: Path | None, w
 def _variant(config: Any, rest: SurfaceMesh, edit: dict, given: dict | None, hook: str, derive: Callable) -> dict:
     if given is not None:
         return given
-    method = getattr(config._target, hook, None)
-    found = method(copy.deepcopy(edit), rest) if method is not None else None
+    found = {"identity_edit": config._target.identity_edit, "rigid_edit": config._target.rigid_edit}[hook](
+        copy.deepcopy(edit), rest)
     if found is None and isinstance(edit.get("handles"), list):
         found = derive(edit, rest)
     if found is None:

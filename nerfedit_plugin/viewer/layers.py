@@ -1,8 +1,8 @@
 """Open3D viewer of an edit: rest and deformed mesh, tet proxy, cage and handles — in a window or headless.
 
 An edit folder (``nerfedit edit --out EDIT_DIR``) supplies the deformed mesh, ``deformation.npz`` (rest and
-deformed proxy), the cages a cage deformer wrote and the spec's handles. Deformed geometry is shifted along +x by
-``1.2 ×`` the rest bounding box width so rest and edit sit side by side. Windows need a display
+deformed proxy) and the spec's handles; its deformer adds what it wrote (``Deformer.overlays``, e.g. cages).
+Deformed geometry is shifted along +x by ``1.2 ×`` the rest bounding box width so rest and edit sit side by side. Windows need a display
 (``draw_geometries``); :func:`screenshot` renders offscreen with the legacy ``Visualizer(visible=False)`` (EGL when
 no display is present) and writes a PNG.
 """
@@ -21,10 +21,13 @@ from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.edit.deformer import Deformer
 from nerfedit_plugin.registry import DEFORMERS, discover
 
-LAYERS = ("mesh", "deformed", "proxy", "deformed-proxy", "cage", "handles")
-FIXED, MOVED = (0.15, 0.35, 0.95), (0.95, 0.2, 0.15)
+LAYERS = ("mesh", "deformed", "proxy", "deformed-proxy", "handles")
+DEFAULT_LAYERS = ("mesh", "deformed", "deformed-proxy", "handles")
+"""Shown when no layers are named, with every overlay of the edit's deformer."""
+FIXED, MOVED, OVERLAY = (0.15, 0.35, 0.95), (0.95, 0.2, 0.15), (0.2, 0.6, 0.3)
 
 
 def _triangles(mesh: SurfaceMesh, color: Sequence[float] | None = None):
@@ -47,12 +50,12 @@ def _edges(vertices: np.ndarray, tets_or_faces: np.ndarray, color: Sequence[floa
     return lines
 
 
-def _handles(spec_path: Path, deformer: str, points_of_handles: np.ndarray):
-    """Point cloud of the spec's handle selections on ``points_of_handles`` (the rest mesh's vertices, or the rest
-    cage's for a cage edit), fixed blue, moved red; None when the spec has no handles."""
+def _handles(spec_path: Path, deformer: type[Deformer], points_of_handles: np.ndarray):
+    """Point cloud of the spec's handle selections on ``points_of_handles`` (what the deformer's handles grab), fixed
+    blue, moved red; None when the spec has no handles."""
     import open3d as o3d
 
-    spec = load_edit_spec(spec_path, discover().config_class(DEFORMERS, deformer)()._target.spec_keys)
+    spec = load_edit_spec(spec_path, deformer.spec_keys)
     if not spec.handles:
         return None
     points, colors = [], []
@@ -65,26 +68,37 @@ def _handles(spec_path: Path, deformer: str, points_of_handles: np.ndarray):
     return cloud
 
 
+def _overlay(mesh: SurfaceMesh | None, style: str, shift: np.ndarray):
+    if mesh is None:
+        return []
+    moved = mesh.with_vertices(mesh.vertices + shift)
+    return [_edges(moved.vertices, moved.faces, OVERLAY) if style == "wire" else _triangles(moved, OVERLAY)]
+
+
 def edit_geometries(mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None, frame: int = 0,
-                    layers: Iterable[str] = LAYERS) -> list:
-    """The Open3D geometries of ``layers`` (see :data:`LAYERS`) for a rest ``mesh`` and an optional edit folder;
-    layers the folder does not hold (e.g. ``cage`` of an ARAP edit) are left out."""
-    layers = set(layers)
-    unknown = layers - set(LAYERS)
-    if unknown:
-        raise NerfEditError(f"show: unknown layer(s) {', '.join(sorted(unknown))} (choose from {', '.join(LAYERS)})")
+                    layers: Iterable[str] | None = None) -> list:
+    """The Open3D geometries of ``layers`` for a rest ``mesh`` and an optional edit folder. Built-in layers are
+    :data:`LAYERS`; the edit's deformer adds its own (:meth:`Deformer.overlays`, e.g. ``cage``). ``None``:
+    :data:`DEFAULT_LAYERS` and every overlay. Layers the folder does not hold are left out."""
+    given = layers is not None
+    layers = set(layers) if given else set(DEFAULT_LAYERS)
     shift = np.array([1.2 * float(np.ptp(mesh.vertices[:, 0])), 0.0, 0.0])
     out = [_triangles(mesh)] if "mesh" in layers else []
     if edit_dir is None:
+        _check_layers(layers, LAYERS)
         return out
     edit_dir = Path(edit_dir)
     config_file = edit_dir / "config.yml"
     if not config_file.is_file():
         raise NerfEditError(f"{edit_dir}: not an edit folder (no config.yml; make one with `nerfedit edit`)")
     record = yaml.safe_load(config_file.read_text()) or {}
+    deformer = discover(DEFORMERS).config_class(DEFORMERS, str(record.get("deformer", "arap")))()._target
     meshes = sorted(edit_dir.glob("deformed_mesh*.ply"))
     if not 0 <= frame < len(meshes):
         raise NerfEditError(f"frame: {frame} out of range for the {len(meshes)} deformed mesh(es) in {edit_dir}")
+    overlays = deformer.overlays(edit_dir, frame)
+    layers |= set() if given else {o.layer for o in overlays}
+    _check_layers(layers, LAYERS + tuple(o.layer for o in overlays))
     if "deformed" in layers:
         deformed = SurfaceMesh.load(meshes[frame])
         out.append(_triangles(deformed.with_vertices(deformed.vertices + shift)))
@@ -94,19 +108,19 @@ def edit_geometries(mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None
             out.append(_edges(field.rest_vertices, field.tets, (0.55, 0.55, 0.6)))
         if "deformed-proxy" in layers:
             out.append(_edges(field.deformed_vertices[frame] + shift, field.tets, (0.9, 0.55, 0.2)))
-    cage = SurfaceMesh.load(edit_dir / "cage_rest.ply") if (edit_dir / "cage_rest.ply").is_file() else None
-    if "cage" in layers and cage is not None:
-        out.append(_edges(cage.vertices, cage.faces, (0.2, 0.6, 0.3)))
-        posed = sorted(edit_dir.glob("cage_deformed*.ply"))
-        if posed:
-            moved = SurfaceMesh.load(posed[min(frame, len(posed) - 1)])
-            out.append(_edges(moved.vertices + shift, moved.faces, (0.2, 0.6, 0.3)))
+    for overlay in (o for o in overlays if o.layer in layers):
+        out += _overlay(overlay.rest, overlay.style, np.zeros(3)) + _overlay(overlay.deformed, overlay.style, shift)
     spec = Path(str(record.get("edit", ""))).name
     if "handles" in layers and spec and (edit_dir / spec).is_file():
-        handles = _handles(edit_dir / spec, str(record.get("deformer", "arap")),
-                           mesh.vertices if cage is None else cage.vertices)  # cage handles grab cage vertices
+        handles = _handles(edit_dir / spec, deformer, deformer.handle_points(edit_dir, mesh))
         out += [handles] if handles is not None else []
     return out
+
+
+def _check_layers(layers: set[str], known: tuple[str, ...]) -> None:
+    unknown = layers - set(known)
+    if unknown:
+        raise NerfEditError(f"show: unknown layer(s) {', '.join(sorted(unknown))} (choose from {', '.join(known)})")
 
 
 def screenshot(geometries: list, path: str | os.PathLike, width: int = 960, height: int = 540,

@@ -26,7 +26,7 @@ from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 igl = pytest.importorskip("igl")
 
-CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
 # ---- meshes ----------------------------------------------------------------------------------------

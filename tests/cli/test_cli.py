@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.run import open_run
 from nerfedit_plugin.data.synthetic import render_ground_truth

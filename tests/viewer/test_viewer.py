@@ -9,7 +9,7 @@ import skimage.io
 import torch
 from PIL import Image
 
-from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.viewer.layers import edit_geometries
 from nerfedit_plugin.render.views import turntable_cameras, write_gif
 

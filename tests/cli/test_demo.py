@@ -5,7 +5,7 @@ import json
 import numpy as np
 from PIL import Image
 
-from nerfedit_plugin.cli.main import main
+from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.data.datasets import read_image
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.geometry.mesh import SurfaceMesh

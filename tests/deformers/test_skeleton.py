@@ -289,7 +289,7 @@ def bunny():
 def test_example_configs_on_the_bunny(bunny, name, n_frames):
     from pathlib import Path
 
-    spec = load_edit_spec(Path(__file__).parents[1] / "configs" / name, SkeletonDeformer.spec_keys)
+    spec = load_edit_spec(Path(__file__).parents[2] / "configs" / name, SkeletonDeformer.spec_keys)
     d = SkeletonConfig().setup()
     d.bind(bunny, spec)
     frames = d.deform()

@@ -300,8 +300,9 @@ class ViewArgs:
     """Edit folder (`nerfedit edit --out`)."""
     frame: int = 0
     """Frame of an animated edit."""
-    show: tuple[str, ...] = ("mesh", "deformed", "deformed-proxy", "cage", "handles")
-    """Layers: mesh, deformed, proxy, deformed-proxy, cage, handles."""
+    show: tuple[str, ...] | None = None
+    """Layers: mesh, deformed, proxy, deformed-proxy, handles, and what the edit's deformer adds (cage); default:
+    all but proxy."""
     screenshot: Path | None = None
     """Render offscreen into this PNG instead of opening a window (works without a display)."""
     width: int = 960
