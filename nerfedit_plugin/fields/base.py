@@ -83,12 +83,14 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
         raise NotImplementedError(f"{type(self).__name__} is not an SDF field")
 
     def fit(self, dataset: Any, **kwargs: Any) -> dict:
-        """Optimise the field on a :class:`nerfedit_plugin.data.datasets.Dataset`; returns a log (loss/PSNR per step)."""
-        raise NotImplementedError
+        """``data = "images"`` fields: optimise on a :class:`nerfedit_plugin.data.datasets.Dataset` (keyword
+        ``eval_dataset`` for a held-out curve); returns a log (loss/PSNR per step)."""
+        raise NotImplementedError(f"{type(self).__name__} is not trained on images (data = {self.data!r})")
 
-    def extract_mesh(self, resolution: int = 256, level: float | None = None) -> SurfaceMesh:
-        """Marching cubes (scikit-image) of the density/SDF over ``scene_bbox`` at ``level``."""
-        raise NotImplementedError
+    @classmethod
+    def from_mesh(cls, mesh: SurfaceMesh, config: FieldConfig | None = None) -> "Field":
+        """``data = "mesh"`` fields: build the field from a (vertex-coloured) mesh; nothing to fit."""
+        raise NotImplementedError(f"{cls.__name__} is not built from a mesh (data = {cls.data!r})")
 
     def save(self, path: str | os.PathLike, registry: Registry | None = None) -> None:
         """Checkpoint (``field.pt``): backend name, config, scene box and state dict, written atomically
