@@ -1,4 +1,4 @@
-"""ARAP solver vs libigl (DESIGN.md §6), both ratios measured in this run.
+"""ARAP solver vs libigl (docs/benchmarks.md), both ratios measured in this run.
 
 1. Surface ARAP (SPOKES_AND_RIMS) on the pymeshlab bunny with ``configs/arap_bunny_head.json`` (bottom fixed,
    head and ears rotated): wall time (precompute + iterations) until our solver stops (relative energy decrease
@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.edit.spec import load_edit_spec
+from nerfedit_plugin.geometry.tets import orient_tets
 
 ROOT = Path(__file__).resolve().parents[1]
 TOLERANCE = 1e-6
@@ -53,11 +54,27 @@ def sphere_tets(quick: bool) -> tuple[np.ndarray, np.ndarray]:
         )
         np.savez(cache, vertices=vertices, tets=tets)
     data = np.load(cache)
-    vertices, tets = data["vertices"].astype(np.float64), data["tets"].astype(np.int64)
-    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
-    flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) < 0
-    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
-    return vertices, tets
+    vertices = data["vertices"].astype(np.float64)
+    return vertices, orient_tets(vertices, data["tets"])
+
+
+def run_ours(vertices, elements, handles, targets, energy: str | None = None, **solve):
+    """Our solver, built (the precompute) and run: ``(solver, result, precompute seconds, total seconds)``."""
+    start = time.perf_counter()
+    solver = ArapSolver(vertices, elements, energy=energy, fixed=handles)
+    precompute = time.perf_counter() - start
+    ours = solver.solve(targets, **solve)
+    return solver, ours, precompute, time.perf_counter() - start
+
+
+def igl_precompute(vertices, elements, handles, energy, max_iter: int) -> tuple[igl.ARAPData, float]:
+    """libigl's ``arap_precomputation``: ``(data, seconds)``."""
+    start = time.perf_counter()
+    data = igl.ARAPData()
+    data.energy = energy
+    data.max_iter = max_iter
+    igl.arap_precomputation(vertices, elements, 3, handles.astype(np.int32), data)
+    return data, time.perf_counter() - start
 
 
 def bench_surface(quick: bool) -> float:
@@ -66,24 +83,16 @@ def bench_surface(quick: bool) -> float:
     handles, targets = load_edit_spec(ROOT / "configs" / "arap_bunny_head.json").handle_targets(vertices)
     targets = targets[-1]
 
-    start = time.perf_counter()
-    solver = ArapSolver(vertices, faces, fixed=handles)
-    precompute = time.perf_counter() - start
-    ours = solver.solve(targets, max_iterations=1000, tolerance=TOLERANCE)
-    ours_time = time.perf_counter() - start
+    solver, ours, precompute, ours_time = run_ours(vertices, faces, handles, targets, max_iterations=1000,
+                                                   tolerance=TOLERANCE)
     print(f"surface ARAP, bunny {len(vertices)} vertices / {len(faces)} faces, {len(handles)} handle vertices")
     print(f"  ours:   precompute {precompute:.2f} s, {ours.iterations} iterations {ours_time - precompute:.2f} s, "
           f"total {ours_time:.2f} s, energy {ours.energies[-1]:.9g} (converged={ours.converged})")
 
-    start = time.perf_counter()
-    data = igl.ARAPData()
-    data.energy = igl.ARAP_ENERGY_TYPE_SPOKES_AND_RIMS
-    data.max_iter = 10
-    igl.arap_precomputation(vertices, faces, 3, handles.astype(np.int32), data)
-    igl_precompute = time.perf_counter() - start
+    data, igl_setup = igl_precompute(vertices, faces, handles, igl.ARAP_ENERGY_TYPE_SPOKES_AND_RIMS, 10)
     current = vertices.copy()
     current[handles] = targets
-    energy, iterations, igl_time, cap = solver.energy(current), 0, igl_precompute, 3000 if not quick else 1500
+    energy, iterations, igl_time, cap = solver.energy(current), 0, igl_setup, 3000 if not quick else 1500
     reason = "iteration cap"
     while iterations < cap:
         start = time.perf_counter()
@@ -98,7 +107,7 @@ def bench_surface(quick: bool) -> float:
             reason = "stopped decreasing"
             break
     difference = np.abs(current - ours.vertices).max() / scale
-    print(f"  libigl: precompute {igl_precompute:.2f} s, {iterations} iterations {igl_time - igl_precompute:.2f} s, "
+    print(f"  libigl: precompute {igl_setup:.2f} s, {iterations} iterations {igl_time - igl_setup:.2f} s, "
           f"total {igl_time:.2f} s, energy {energy:.9g} ({reason})")
     ratio = ours_time / igl_time
     print(f"  max vertex difference ours vs libigl: {difference:.2e} x bbox diagonal")
@@ -116,26 +125,19 @@ def bench_tets(quick: bool) -> float:
     targets = np.concatenate([vertices[fixed], (vertices[moved] - centre) @ rot.T + centre + [0, 0.2, 0]])
     iterations = 10
 
-    start = time.perf_counter()
-    solver = ArapSolver(vertices, tets, energy="elements", fixed=handles)
-    precompute = time.perf_counter() - start
-    ours = solver.solve(targets, max_iterations=iterations, tolerance=0.0)
-    ours_time = time.perf_counter() - start
+    solver, ours, precompute, ours_time = run_ours(vertices, tets, handles, targets, "elements",
+                                                   max_iterations=iterations, tolerance=0.0)
     print(f"tet ARAP (ELEMENTS), pytetwild sphere {len(vertices)} vertices / {len(tets)} tets, {len(handles)} handles")
     print(f"  ours:   precompute {precompute:.2f} s, {ours.iterations} iterations {ours_time - precompute:.2f} s, "
           f"total {ours_time:.2f} s, energy {ours.energies[-1]:.9g}")
 
-    start = time.perf_counter()
-    data = igl.ARAPData()
-    data.energy = igl.ARAP_ENERGY_TYPE_ELEMENTS
-    data.max_iter = iterations
-    igl.arap_precomputation(vertices, tets, 3, handles.astype(np.int32), data)
-    igl_precompute = time.perf_counter() - start
+    data, igl_setup = igl_precompute(vertices, tets, handles, igl.ARAP_ENERGY_TYPE_ELEMENTS, iterations)
     initial = vertices.copy()
     initial[handles] = targets
+    start = time.perf_counter()
     result = igl.arap_solve(targets, data, initial)
-    igl_time = time.perf_counter() - start
-    print(f"  libigl: precompute {igl_precompute:.2f} s, {iterations} iterations {igl_time - igl_precompute:.2f} s, "
+    igl_time = igl_setup + time.perf_counter() - start
+    print(f"  libigl: precompute {igl_setup:.2f} s, {iterations} iterations {igl_time - igl_setup:.2f} s, "
           f"total {igl_time:.2f} s, energy {solver.energy(result):.9g}")
     ratio = ours_time / igl_time
     print(f"  RATIO tets (ours / libigl, precompute + {iterations} iterations) = {ratio:.3f}  (target <= 0.5)")

@@ -1,7 +1,7 @@
 """Point location in a tet mesh: TetLocator (uniform grid; compiled walk on the CPU) vs VTK's cell locator, exactness
 vs brute force.
 
-Anchor (DESIGN.md §6): ``pyvista.UnstructuredGrid(...).find_containing_cell(points)`` on the same tets and the
+Anchor (docs/benchmarks.md): ``pyvista.UnstructuredGrid(...).find_containing_cell(points)`` on the same tets and the
 same points (uniform in the tets' bounding box enlarged by 10 %, a mix of inside and outside), measured in the
 same run. Meshes: real pytetwild tet meshes (``optimize=True, epsilon=5e-3``) of the decimated pymeshlab bunny
 (~11k tets) and of an icosphere (~2k tets), cached in ``/tmp``. Exactness: tet ids of the grid answer vs
@@ -9,7 +9,7 @@ same run. Meshes: real pytetwild tet meshes (``optimize=True, epsilon=5e-3``) of
 same number of points (the bunny proxy twisted about its vertical axis). Times are the best of a few runs (wall clock); VTK is
 single-threaded, so TetLocator is reported with torch's default threads and with one thread.
 
-    /work/venv/bin/python bench/bench_locate.py [--quick]
+    python bench/bench_locate.py [--quick]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import torch
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.locate import TetLocator, locate_brute_force
-from nerfedit_plugin.edit.proxy import tet_signed_volumes
+from nerfedit_plugin.geometry.tets import orient_tets
 from nerfedit_plugin.io.samples import sample_mesh_path
 from timing import best_of
 
@@ -50,9 +50,8 @@ def tet_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
         vertices, faces, fac = sphere.vertices, sphere.faces, 0.085
     vertices, tets = pytetwild.tetrahedralize(
         vertices, faces.astype(np.int32), edge_length_fac=fac, optimize=True, epsilon=5e-3, quiet=True)
-    vertices, tets = np.asarray(vertices, dtype=np.float64), np.asarray(tets, dtype=np.int64)
-    negative = tet_signed_volumes(vertices, tets) < 0
-    tets[negative] = tets[negative][:, [1, 0, 2, 3]]
+    vertices = np.asarray(vertices, dtype=np.float64)
+    tets = orient_tets(vertices, tets)
     CACHE.mkdir(exist_ok=True)
     np.savez(path, vertices=vertices, tets=tets)
     return vertices, tets

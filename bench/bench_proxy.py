@@ -1,11 +1,11 @@
 """Proxy build time (alpha-wrap cage -> decimate -> pytetwild -> clean -> embed) vs raw pytetwild on the mesh.
 
-Anchor (DESIGN.md §6): raw pytetwild on the undecimated mesh, same ``edge_length_fac``/``epsilon``,
+Anchor (docs/benchmarks.md): raw pytetwild on the undecimated mesh, same ``edge_length_fac``/``epsilon``,
 ``optimize=True``. On the 28k-vertex bunny it takes minutes, so by default the anchor runs on the cow and the
 airplane (the same kind of run, on meshes it finishes) and the bunny gets our absolute time; ``--full`` adds the
 raw bunny anchor. ``--quick`` runs the cow only.
 
-    /work/venv/bin/python bench/bench_proxy.py [--quick | --full]
+    python bench/bench_proxy.py [--quick | --full]
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import time
 import numpy as np
 
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.edit.proxy import ProxyConfig, build_proxy, tet_signed_volumes, tetrahedralize
+from nerfedit_plugin.edit.proxy import ProxyConfig, build_proxy, tetrahedralize
+from nerfedit_plugin.geometry.tets import tet_signed_volumes
 from nerfedit_plugin.io.samples import sample_mesh_path
 
 

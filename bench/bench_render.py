@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 from nerfedit_plugin.data.cameras import Cameras, look_at  # noqa: E402
 from nerfedit_plugin.bending.deformation_field import DeformationField  # noqa: E402
 from nerfedit_plugin.fields.mesh_field import MeshField  # noqa: E402
+from nerfedit_plugin.geometry import raycast  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField  # noqa: E402
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField  # noqa: E402
 from nerfedit_plugin.edit.lift import Lift  # noqa: E402
@@ -82,14 +83,11 @@ def grid_field(mesh: SurfaceMesh, box: torch.Tensor) -> NerfField:
 def sdf_field(mesh: SurfaceMesh, box: torch.Tensor) -> NeusField:
     """The neus backend's dense SDF+RGB grid holding the mesh's signed distance (Open3D), sharpness s·h = 4,
     surface colours: a stand-in for a trained NeuS field (every sample also needs the SDF gradient)."""
-    import open3d as o3d
-
     config = NeusConfig(resolution=64, features=3, decoder="rgb", upsample_steps=(), occupancy_resolution=32)
     field = NeusField(config, box)
     lattice = field.grid.vertex_points().reshape(-1, 3)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh.to_open3d()))
-    distance = torch.from_numpy(scene.compute_signed_distance(o3d.core.Tensor(lattice.numpy())).numpy())
+    scene = raycast.raycasting_scene(mesh.vertices, mesh.faces)
+    distance = torch.from_numpy(raycast.signed_distance(scene, lattice.numpy()))
     colors = MeshField.from_mesh(mesh).surface_colors(lattice).clamp(1e-3, 1 - 1e-3)
     with torch.no_grad():
         field.grid.table[:, 0] = distance.to(field.grid.table) / field.cell

@@ -2,7 +2,7 @@
 the calibration floor — a plain 96³ density+RGB grid with uniform samples and no occupancy grid — trained in the
 same run for the same time.
 
-    /work/venv/bin/python bench/bench_train.py [--field {nerf,neus}] [--quick] [--seconds S] [--clock {wall,cpu}]
+    python bench/bench_train.py [--field {nerf,neus}] [--quick] [--seconds S] [--clock {wall,cpu}]
 
 Generates ``sample:bunny`` at 100×100 (50 train / 10 test views, white background) into a temp folder, trains
 each model for S seconds (default 300; ``--quick``: 60) on 2 threads and prints test PSNR every S/10 seconds, then
@@ -20,12 +20,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.fields.nerf import NerfConfig
 from nerfedit_plugin.fields.neus import NeusConfig
+from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 
@@ -56,15 +56,11 @@ def run(name: str, config, train, test, seconds: float, clock: str = "wall"):
 
 def chamfer(a: SurfaceMesh, b: SurfaceMesh, seed: int = 0) -> float:
     """Symmetric Chamfer distance ``½ (mean_{p∈A} d(p, B) + mean_{q∈B} d(q, A))`` over area-uniform samples."""
-    import open3d as o3d
     import trimesh
 
     def one_way(source: SurfaceMesh, target: SurfaceMesh) -> float:
         points, _ = trimesh.sample.sample_surface(source.to_trimesh(), SURFACE_SAMPLES, seed=seed)
-        scene = o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(o3d.core.Tensor(target.vertices.astype(np.float32)),
-                            o3d.core.Tensor(target.faces.astype(np.uint32)))
-        return float(scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().mean())
+        return float(raycast.distance(raycast.raycasting_scene(target.vertices, target.faces), points).mean())
 
     return 0.5 * (one_way(a, b) + one_way(b, a))
 

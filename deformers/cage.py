@@ -1,16 +1,10 @@
 """Cage deformer: a closed triangle cage around the mesh carries it by mean value (default) or Green coordinates.
 
-Edit spec (besides ``frames``):
-
-* ``"cage": "cage.ply"`` + ``"deformed_cage": "cage_deformed.ply"`` — both cages given (same vertex order, e.g.
-  edited in Blender); paths are relative to the spec's folder. Frames interpolate linearly from rest.
-* ``"cage": "auto"`` (the default) or a cage file + ``"handles"`` — handle selections and transforms are applied
-  to the *cage vertices* (``indices`` selections index cage vertices; unselected cage vertices stay put), exactly
-  as ARAP applies them to mesh vertices.
-
-``bind`` computes the coordinates of every mesh vertex once (a dense ``(V, C)`` matrix); each pose is then one
-matrix product. Mesh points outside the cage trigger a warning (mean value coordinates extrapolate; Green
-coordinates are undefined there, so those points fall back to mean value coordinates).
+Spec (besides ``frames``): ``"cage": "cage.ply"`` + ``"deformed_cage": "cage_deformed.ply"`` (both cages given, same
+vertex order; frames interpolate linearly), or ``"cage": "auto"`` (default) / a cage file + ``"handles"`` applied to
+the *cage* vertices. ``bind`` computes the coordinates ``(V, C)`` float64 of every mesh vertex once; each pose is one
+matrix product. Mesh points outside the cage trigger a warning (mean value coordinates extrapolate; Green coordinates
+are undefined there and fall back to mean value coordinates). Formulas: docs/method.md, "Built-in deformers".
 """
 
 from __future__ import annotations
@@ -27,6 +21,8 @@ from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry import raycast
+from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 
 from .green import green_coordinates, green_face_terms
 from .mean_value import mean_value_coordinates
@@ -56,15 +52,7 @@ class CageConfig(DeformerConfig):
 def auto_cage(mesh: SurfaceMesh, alpha: float = 5.0, offset: float = 2.0, max_vertices: int = 400) -> SurfaceMesh:
     """A coarse watertight cage around ``mesh``: pymeshlab alpha wrap (percentages of the bbox diagonal), then
     quadric edge collapse down to ``max_vertices`` if needed."""
-    import pymeshlab
-
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces.astype(np.int32)))
-    ms.generate_alpha_wrap(alpha=pymeshlab.PercentageValue(alpha), offset=pymeshlab.PercentageValue(offset))
-    if ms.current_mesh().vertex_number() > max_vertices:  # genus 0: F ≈ 2V
-        ms.meshing_decimation_quadric_edge_collapse(targetfacenum=2 * max_vertices - 4, preservetopology=True)
-    wrap = ms.current_mesh()
-    return SurfaceMesh(wrap.vertex_matrix(), wrap.face_matrix())
+    return wrap_and_decimate(mesh.vertices, mesh.faces, alpha, offset, percent=True, max_vertices=max_vertices)
 
 
 def validate_cage(cage: SurfaceMesh, label: str) -> SurfaceMesh:
@@ -99,14 +87,10 @@ def enclosure(points: np.ndarray, cage: SurfaceMesh) -> tuple[np.ndarray, np.nda
     Open3D ray parity (float32, majority of 3 rays) decides points farther than ``NEAR_CAGE`` × cage size from
     the cage; the exact winding number of the mean value kernel (±1 inside, 0 outside, ½ on the cage) decides
     the few closer ones."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(cage.vertices.astype(np.float32)), o3d.core.Tensor(cage.faces.astype(np.uint32)))
-    query = o3d.core.Tensor(points.astype(np.float32))
-    inside = scene.compute_occupancy(query, nsamples=3).numpy() > 0.5
+    scene = raycast.raycasting_scene(cage.vertices, cage.faces)
+    inside = raycast.occupancy(scene, points, nsamples=3)
     outside = ~inside
-    near = np.flatnonzero(scene.compute_distance(query).numpy() <= NEAR_CAGE * cage.bbox_diagonal)
+    near = np.flatnonzero(raycast.distance(scene, points) <= NEAR_CAGE * cage.bbox_diagonal)
     if near.size:
         _, winding = mean_value_coordinates(points[near], cage.vertices, cage.faces, return_winding=True)
         inside[near], outside[near] = np.abs(winding) > 0.5, np.abs(winding) < 0.5

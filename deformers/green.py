@@ -1,23 +1,10 @@
-"""Green coordinates of a closed, outward-oriented triangle cage (Lipman, Levin & Cohen-Or 2008).
+"""Green coordinates of a closed, outward-oriented triangle cage (Lipman, Levin & Cohen-Or, SIGGRAPH 2008).
 
-For x inside the cage, Green's third identity gives x = Σ_i φ_i(x) v_i + Σ_j ψ_j(x) n_j (n_j unit outward
-normals), and a deformed cage (v', n') maps x to
-
-    x' = Σ_i φ_i v'_i + Σ_j ψ_j s_j n'_j,     s_j = √(‖u'‖²‖w‖² − 2(u'·w')(u·w) + ‖w'‖²‖u‖²) / (√8 · area_j),
-
-u, w the edge vectors v₂ − v₁, v₃ − v₁ of face j (primes: deformed): exact for similarities, quasi-conformal
-otherwise, defined inside the cage only (outside, the identity yields 0 instead of x).
-
-The paper evaluates its integrals with GCTriInt per (face, corner). We use their closed forms instead. With
-v_l = V_{i_l} − x, d_l = ‖v_l‖, for the face edge m from corner m to m+1 (length ℓ_m):
-
-* segment potential  ∫_{triangle(x, edge m)} 1/‖y − x‖ = L_m · log R_m,  R_m = (d_m + d_{m+1} + ℓ_m) / (d_m + d_{m+1} − ℓ_m),
-  with L_m the distance from x to the edge's line; Lipman's II_m = −L_m log R_m / 4π and ‖v_{m+1} × v_m‖ = L_m ℓ_m;
-* triangle potential ψ_j = (1/4π) ∫_{face} 1/‖y − x‖ = (1/4π) (Σ_m t_m log R_m − |h| |Ω|), t_m the signed in-plane
-  distance from x's projection to edge m, h the distance to the face's plane, Ω the face's solid angle at x;
-* φ: w = −n ψ − (1/4π) Σ_m q_m log R_m / ℓ_m with q_m = v_{m+1} × v_m, and φ_{i_l} += −q_{l+1}·w / det[v₀,v₁,v₂].
-
-q_m, t_m ℓ_m and det are affine in x (one matrix product each per chunk).
+``green_coordinates(points (P,3), vertices (C,3), faces (F,3)) → (phi (P,C), psi (P,F))`` float64 for points inside
+the cage; a deformed cage maps ``x ↦ x' = Σ_i φ_i v'_i + Σ_j ψ_j s_j n'_j`` (:func:`green_deform`; ``n'_j`` the
+deformed unit normals, ``s_j`` the faces' stretch factors): exact for similarities, quasi-conformal otherwise,
+defined inside the cage only. The integrals are evaluated in closed form (no per-face quadrature); derivation:
+docs/method.md, "Cage: Green coordinates".
 """
 
 from __future__ import annotations
@@ -39,7 +26,8 @@ def _skew(e: np.ndarray) -> np.ndarray:
 
 def green_coordinates(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, chunk_size: int = 32,
                       workers: int = 2):
-    """Green coordinates ``(phi (P, C), psi (P, F))`` of interior ``points (P,3)``; faces must face outward.
+    """Green coordinates ``(phi (P, C), psi (P, F))`` float64 of interior ``points (P,3)`` w.r.t. the cage
+    ``vertices (C,3)`` float, ``faces (F,3)`` int; faces must face outward.
 
     Evaluated in chunks of ``chunk_size`` points on ``workers`` threads. Both results are Fortran-ordered views of
     ``(C, P)`` / ``(F, P)`` arrays.
@@ -86,7 +74,8 @@ def green_coordinates(points: np.ndarray, vertices: np.ndarray, faces: np.ndarra
 
 
 def green_face_terms(rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``s_j n'_j (F, 3)``: the deformed unit normals scaled by the faces' stretch factors."""
+    """rest (C,3), deformed (C,3) float, faces (F,3) int → ``s_j n'_j (F,3)`` float64: the deformed unit normals
+    scaled by the faces' stretch factors ``s_j``."""
     u, w = rest[faces[:, 1]] - rest[faces[:, 0]], rest[faces[:, 2]] - rest[faces[:, 0]]
     ud, wd = deformed[faces[:, 1]] - deformed[faces[:, 0]], deformed[faces[:, 2]] - deformed[faces[:, 0]]
 
@@ -100,5 +89,6 @@ def green_face_terms(rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray) 
 
 
 def green_deform(phi: np.ndarray, psi: np.ndarray, rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``x' = φ v' + ψ (s n')`` for coordinates ``phi (P, C)``, ``psi (P, F)`` and a deformed cage."""
+    """phi (P,C), psi (P,F), rest (C,3), deformed (C,3), faces (F,3) → ``x' = φ v' + ψ (s n')`` (P,3) float64, the
+    deformed positions of the points whose coordinates are ``phi``, ``psi``."""
     return phi @ deformed + psi @ green_face_terms(rest, deformed, faces)

@@ -1,18 +1,10 @@
-"""Automatic skinning weights by bone heat (Baran & Popović 2007, "Automatic rigging and animation of 3D characters").
+"""Automatic skinning weights by bone heat (Baran & Popović, "Automatic Rigging and Animation of 3D Characters",
+SIGGRAPH 2007).
 
-Each bone (segment ``head → tail``; a zero-length segment is a point) heats the surface; at equilibrium
-
-    (K + M H) w_j = M H p_j        for every bone j (one factorisation, one solve per bone),
-
-with K = −L the cotangent stiffness matrix, M the lumped (barycentric) mass matrix, H diagonal with
-``H_ii = k_i c / d_i²`` where ``d_i`` is the distance from vertex i to its nearest heating bone, and
-``p_j(i) = 1/k_i`` when bone j is one of the k_i bones heating vertex i (else 0). The bones heating a vertex are
-its ``nearest`` closest bones, plus any tied with the last of them (the paper: the nearest bone, ties shared).
-With ``visibility`` only bones whose closest point is visible from the vertex (the segment between them does not
-cross the surface; Open3D ray tests) may heat it; a vertex seeing no bone gets H_ii = 0 and its weights by
-diffusion alone. A connected component seeing no bone at all falls back to plain nearest bones.
-Since K·1 = 0, the weights of each vertex sum to 1; they lie in [0, 1] up to the round-off of negative cot weights
-(clipped, rows renormalised).
+``bone_heat_weights(vertices (V,3), faces (F,3), heads (J,3), tails (J,3)) → (V,J) float64`` with rows summing to 1:
+for every bone ``j``, ``(K + M H) w_j = M H p_j`` (``K = −L`` the cotangent stiffness, ``M`` the lumped mass, ``H_ii =
+k_i c / d_i²``, ``p_j`` the bones heating each vertex), one factorisation for all bones; with ``visibility`` only bones
+a vertex can see heat it (Open3D ray tests). Details: docs/method.md, "Skeleton: bone-heat weights".
 """
 
 from __future__ import annotations
@@ -21,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, cotangent_weights
 
 #: relative distance within which bones count as equidistant from a vertex
@@ -30,7 +23,8 @@ MIN_DISTANCE = 1e-4
 
 
 def cotangent_stiffness(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
-    """K = −L: ``K_ij = −½ Σ cot(opposite angles)`` off the diagonal, rows summing to 0 (PSD); no stored zeros.
+    """vertices (V,3) float64, faces (F,3) int64 → ``K (V,V)`` float64 CSR, ``K = −L``: ``K_ij = −½ Σ cot(opposite
+    angles)`` off the diagonal, rows summing to 0 (PSD); no stored zeros.
 
     Assembled from the core's per-triangle cotangent weights (0 on degenerate triangles).
     """
@@ -46,7 +40,8 @@ def cotangent_stiffness(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matri
 
 
 def lumped_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Barycentric lumped mass: a third of the area of every incident triangle, ``(V,)``."""
+    """vertices (V,3) float64, faces (F,3) int64 → ``(V,)`` float64 barycentric lumped mass: a third of the area of
+    every incident triangle."""
     area = 0.5 * np.linalg.norm(
         np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1
     )
@@ -54,7 +49,8 @@ def lumped_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def closest_on_segments(points: np.ndarray, heads: np.ndarray, tails: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points ``(N,J,3)`` on each segment and their distances ``(N,J)``."""
+    """points (N,3), heads (J,3), tails (J,3) float64 → closest points ``(N,J,3)`` on each segment head → tail and
+    their distances ``(N,J)``, float64."""
     axis = tails - heads
     length2 = np.sum(axis * axis, axis=1)
     rel = points[:, None, :] - heads[None]
@@ -64,11 +60,8 @@ def closest_on_segments(points: np.ndarray, heads: np.ndarray, tails: np.ndarray
 
 
 def occluded(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """Whether the segment ``origin → target`` crosses the mesh, ignoring a short stretch at both ends ``(N,)``."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    """vertices (V,3), faces (F,3), origins (N,3), targets (N,3) → ``(N,)`` bool: whether the segment
+    ``origin → target`` crosses the mesh, ignoring a short stretch at both ends (Open3D, float32)."""
     gap = 1e-4 * float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     delta = targets - origins
     length = np.linalg.norm(delta, axis=1, keepdims=True)
@@ -76,12 +69,13 @@ def occluded(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, targe
     start, end = origins + gap * unit, targets - gap * unit
     short = length[:, 0] <= 2 * gap
     rays = np.concatenate([start, end - start], axis=1).astype(np.float32)
-    hit = scene.test_occlusions(o3d.core.Tensor(rays), tnear=0.0, tfar=1.0).numpy()
+    hit = raycast.occluded(raycast.raycasting_scene(vertices, faces), rays, tnear=0.0, tfar=1.0)
     return hit & ~short
 
 
 def heat_sources(dist: np.ndarray, allowed: np.ndarray, nearest: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per vertex, ``p (V,J)`` (1/k on each of its k heating bones) and the distance to the nearest of them.
+    """dist (V,J) float64, allowed (V,J) bool, nearest int → per vertex, ``p (V,J)`` float64 (1/k on each of its k
+    heating bones) and the distance ``(V,)`` float64 to the nearest of them.
 
     Only ``allowed`` bones may heat; a vertex with none gets a zero row and distance ``inf``.
     """
@@ -103,7 +97,8 @@ def bone_heat_weights(
     visibility: bool = True,
     strength: float = 1.0,
 ) -> np.ndarray:
-    """Skinning weights ``(V,J)`` of the bones ``heads[j] → tails[j]`` on the triangle mesh; rows sum to 1."""
+    """vertices (V,3) float, faces (F,3) int, heads (J,3) float, tails (J,3) float → skinning weights ``(V,J)``
+    float64 of the bones ``heads[j] → tails[j]`` on the triangle mesh, in [0, 1], rows summing to 1."""
     from cholespy import CholeskySolverD, MatrixType
 
     vertices = np.asarray(vertices, dtype=np.float64)

@@ -1,26 +1,11 @@
-"""3-D mean value coordinates of a closed, consistently oriented triangle cage (Ju, Schaefer & Warren 2005).
+"""3-D mean value coordinates of a closed, consistently oriented triangle cage (Ju, Schaefer & Warren, SIGGRAPH 2005).
 
-For a point x let d_i = ‖v_i − x‖, u_i = (v_i − x)/d_i, and for a face (i₀, i₁, i₂) let θ_k be the arc
-opposite u_k (the angle the edge opposite corner k subtends at x). Ju et al.:
-
-    w_{i_k} += (θ_k − c_{k+1} θ_{k+2} − c_{k+2} θ_{k+1}) / (d_{i_k} sin θ_{k+1} s_{k+2}),   λ = w / Σ w,
-
-c_j, s_j = cosine and sine of the spherical triangle's angle at u_j. We evaluate it without trigonometry
-that loses digits near the cage:
-
-* arcs from distances only: for an edge (a, b) of length ℓ, num = ℓ² − (d_a − d_b)² = 4d_ad_b sin²(θ/2) and
-  den = (d_a + d_b)² − ℓ² = 4d_ad_b cos²(θ/2), so θ = 2 atan √(num/den) and sin θ = 2 √(num·den) / (num + den)
-  (pairs with θ ≈ 0 or π, where these differences cancel, are recomputed from unit vectors);
-* law of cosines c_j = P_j / (sin θ_{j+1} sin θ_{j+2}), P_j = cos θ_j − cos θ_{j+1} cos θ_{j+2}, and law of
-  sines sin θ_{k+1} s_{k+2} = det[u₀,u₁,u₂] / sin θ_k with det[u₀,u₁,u₂] d₀d₁d₂ = n_f·(v_{i₀} − x)
-  (n_f the face's area normal: one matrix product for all faces). With μ = θ / sin θ this gives
-
-      w_{i_k} += (θ_k sin θ_k − μ_{k+1} P_{k+2} − μ_{k+2} P_{k+1}) · d₀d₁d₂ / (n_f·(v_{i₀} − x)) / d_{i_k}.
-
-Degenerate cases (REFERENCE.md): x on a vertex → δ; x within ``EDGE_EPS`` of an edge → linear interpolation
-along it; x on a face (distance to its plane ≤ ``PLANE_EPS``, inside) → the face's barycentrics; x in a face's
-plane outside it → that face is skipped. Optionally the winding number Σ_f Ω_f / 4π (solid angle
-Ω_f/2 = atan2(n_f·(v₀ − x), d₀d₁d₂(1 + Σ cos θ))) for inside tests. Exterior points extrapolate.
+``mean_value_coordinates(points (P,3), vertices (C,3), faces (F,3)) → (P,C) float64``: rows sum to 1 and reproduce
+linear functions (``coords @ vertices == points``); optionally the winding number ``(P,)`` for inside tests. Per
+face, ``w_{i_k} += (θ_k − c_{k+1} θ_{k+2} − c_{k+2} θ_{k+1}) / (d_{i_k} sin θ_{k+1} s_{k+2})``, ``λ = w / Σ w``,
+evaluated from distances without the trigonometry that loses digits near the cage. Points on a vertex, an edge
+(``EDGE_EPS``) or a face (``PLANE_EPS``) get the exact interpolant there; exterior points extrapolate. Derivation:
+docs/method.md, "Cage: mean value coordinates".
 """
 
 from __future__ import annotations
@@ -56,6 +41,7 @@ class CageGeometry:
 
     @classmethod
     def of(cls, vertices: np.ndarray, faces: np.ndarray) -> "CageGeometry":
+        """vertices (C,3) float, faces (F,3) int → the cage's precomputed geometry (centred on the vertex mean)."""
         vertices = np.asarray(vertices, dtype=np.float64)
         faces = np.asarray(faces, dtype=np.int64)
         origin = vertices.mean(0)
@@ -89,7 +75,8 @@ def mean_value_coordinates(
     workers: int = 2,
     return_winding: bool = False,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """Mean value coordinates ``(P, C)`` float64 of ``points (P,3)`` w.r.t. the cage ``(vertices, faces)``.
+    """Mean value coordinates ``(P, C)`` float64 of ``points (P,3)`` w.r.t. the cage ``vertices (C,3)`` float,
+    ``faces (F,3)`` int (with ``return_winding``: ``(coords (P,C), winding (P,))``, both float64).
 
     Rows sum to 1 and reproduce linear functions: ``coords @ vertices == points``. Evaluated in chunks of
     ``chunk_size`` points on ``workers`` threads, each with a preallocated workspace of ≈ 25 · F · chunk_size

@@ -1,21 +1,11 @@
 """The ``skeleton`` deformer: skin the rest mesh to a skeleton and pose it (dual-quaternion or linear blend skinning).
 
 Spec: ``{"skeleton": "skeleton.json" | "walk.bvh", "pose": {"<joint>": {"rotate": {"axis": [x,y,z], "degrees": d},
-"translate": [x,y,z]}}, "weights": "weights.npy", "frames": n}`` (``pose`` and ``weights`` optional).
-
-- Skeleton JSON: ``{"joints": [{"name": "root", "parent": null, "head": [x,y,z], "tail": [x,y,z]}, ...]}``, in the
-  rest mesh's coordinates. Each joint is one bone, the segment head → tail; ``tail`` defaults to the mean head of
-  the joint's children, and a leaf without a tail is a point bone at its head.
-- A BVH file gives the joints (rest pose = all channels zero; ``End Site`` offsets are leaf tails) and a motion.
-- Pose: each listed joint rotates about its head (axis in the rest / world frame) and then translates; the local
-  maps compose down the hierarchy (forward kinematics), so a joint carries its descendants.
-  ``frames = n > 1`` interpolates from the rest pose to the pose (slerp from the identity).
-  With a BVH skeleton and no pose the clip is the animation: without ``frames`` it plays every BVH frame,
-  ``frames = n`` resamples the clip to n evenly spaced frames (slerp); with a pose the BVH file is only the skeleton.
-- Weights: ``weights.npy (V, joints)`` (columns in file joint order; rows are renormalised to sum 1), else
-  automatic bone-heat weights (:mod:`deformers.heat_weights`).
-- :meth:`SkeletonDeformer.deform_points` gives a point off the surface (a tet-proxy vertex) the weights of its
-  nearest surface point (barycentric interpolation on the closest triangle), then skins it like a vertex.
+"translate": [x,y,z]}}, "weights": "weights.npy", "frames": n}`` (``pose`` and ``weights`` optional). Each joint is
+one bone (segment head → tail); a pose rotates joints about their heads and composes down the hierarchy; a BVH
+without a pose plays its clip. Weights: ``weights.npy (V, joints)`` float, else bone heat
+(:mod:`deformers.heat_weights`). :meth:`SkeletonDeformer.deform_points` skins a point off the surface with the
+weights of its closest surface point. Skeleton JSON, BVH and pose rules: docs/architecture.md, "Edit spec".
 """
 
 from __future__ import annotations
@@ -32,34 +22,14 @@ from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.edit.spec import EditSpec
+from nerfedit_plugin.edit.spec import EditSpec, check_keys, vector
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 from .bvh import BvhClip, parse_bvh
 from .heat_weights import bone_heat_weights
 from .skinning import Binding, normalize_weights, skin
-
-
-def _vector(value: Any, source: str, key: str) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = np.zeros(0)
-    if arr.shape != (3,) or isinstance(value, str):
-        raise NerfEditError(f"{source}: {key}: expected 3 numbers, got {value!r}")
-    if not np.isfinite(arr).all():
-        raise NerfEditError(f"{source}: {key}: contains NaN or Inf")
-    return arr
-
-
-def _mapping(value: Any, allowed: set[str], source: str, key: str) -> dict:
-    if not isinstance(value, dict):
-        raise NerfEditError(f"{source}: {key}: expected a mapping, got {type(value).__name__}")
-    for name in value:
-        if name not in allowed:
-            raise NerfEditError(f"{source}: {key}.{name}: unknown key (expected one of {sorted(allowed)})")
-    return value
 
 
 def closest_point_barycentrics(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -147,17 +117,14 @@ class Skeleton:
             data = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise NerfEditError(f"{source}: cannot parse skeleton JSON ({exc})".replace("\n", " ")) from exc
-        _mapping(data, {"joints"}, source, "skeleton")
+        check_keys(data, {"joints"}, source, "skeleton")
         joints = data.get("joints")
         if not isinstance(joints, list) or not joints:
             raise NerfEditError(f"{source}: joints: expected a non-empty list of joints")
         names, parent_names, heads, tails = [], [], [], []
         for j, joint in enumerate(joints):
             key = f"joints[{j}]"
-            _mapping(joint, {"name", "parent", "head", "tail"}, source, key)
-            for required in ("name", "head"):
-                if required not in joint:
-                    raise NerfEditError(f"{source}: {key}.{required}: missing")
+            check_keys(joint, {"name", "parent", "head", "tail"}, source, key, required=("name", "head"))
             if not isinstance(joint["name"], str) or not joint["name"]:
                 raise NerfEditError(f"{source}: {key}.name: expected a non-empty string, got {joint['name']!r}")
             parent = joint.get("parent")
@@ -165,8 +132,8 @@ class Skeleton:
                 raise NerfEditError(f"{source}: {key}.parent: expected a joint name or null, got {parent!r}")
             names.append(joint["name"])
             parent_names.append(parent)
-            heads.append(_vector(joint["head"], source, f"{key}.head"))
-            tails.append(_vector(joint["tail"], source, f"{key}.tail") if "tail" in joint else np.full(3, np.nan))
+            heads.append(vector(joint["head"], source, f"{key}.head"))
+            tails.append(vector(joint["tail"], source, f"{key}.tail") if "tail" in joint else np.full(3, np.nan))
         index = {name: j for j, name in enumerate(names)}
         parents = []
         for j, parent in enumerate(parent_names):
@@ -207,17 +174,15 @@ class Skeleton:
             if name not in self.names:
                 raise NerfEditError(f"{source}: {key}: unknown joint (the skeleton {self.source} has {list(self.names)})")
             j = self.names.index(name)
-            _mapping(item, {"rotate", "translate"}, source, key)
+            check_keys(item, {"rotate", "translate"}, source, key)
             if not item:
                 raise NerfEditError(f"{source}: {key}: empty transform (give rotate and/or translate)")
             if "translate" in item:
-                trans[j] = _vector(item["translate"], source, f"{key}.translate")
+                trans[j] = vector(item["translate"], source, f"{key}.translate")
             if "rotate" in item:
-                rot = _mapping(item["rotate"], {"axis", "degrees"}, source, f"{key}.rotate")
-                for required in ("axis", "degrees"):
-                    if required not in rot:
-                        raise NerfEditError(f"{source}: {key}.rotate.{required}: missing")
-                axis = _vector(rot["axis"], source, f"{key}.rotate.axis")
+                required = ("axis", "degrees")
+                rot = check_keys(item["rotate"], required, source, f"{key}.rotate", required=required)
+                axis = vector(rot["axis"], source, f"{key}.rotate.axis")
                 degrees = rot["degrees"]
                 if isinstance(degrees, bool) or not isinstance(degrees, (int, float)) or not math.isfinite(degrees):
                     raise NerfEditError(f"{source}: {key}.rotate.degrees: expected a finite number, got {degrees!r}")
@@ -353,15 +318,10 @@ class SkeletonDeformer(Deformer):
 
     def point_weights(self, points: np.ndarray) -> np.ndarray:
         """Weights of arbitrary points: the vertex weights interpolated at the nearest surface point ``(M,J)``."""
-        import open3d as o3d
-
         if self._scene is None:
-            self._scene = o3d.t.geometry.RaycastingScene()
-            self._scene.add_triangles(
-                o3d.core.Tensor(self.rest.vertices.astype(np.float32)), o3d.core.Tensor(self.rest.faces.astype(np.uint32))
-            )
-        found = self._scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
-        tri = self.rest.faces[found["primitive_ids"].numpy().astype(np.int64)]
+            self._scene = raycast.raycasting_scene(self.rest.vertices, self.rest.faces)
+        triangle, _ = raycast.closest_points(self._scene, points)  # Open3D's float32 barycentrics: recomputed exactly
+        tri = self.rest.faces[triangle]
         corners = self.rest.vertices[tri]
         bary = closest_point_barycentrics(points, corners[:, 0], corners[:, 1], corners[:, 2])
         return np.einsum("mk,mkj->mj", bary, self.weights[tri])

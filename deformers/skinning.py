@@ -1,17 +1,10 @@
-"""Linear blend skinning and dual-quaternion skinning (Kavan et al. 2008), vectorised over points.
+"""Linear blend skinning and dual-quaternion skinning (Kavan et al., ACM TOG 2008), vectorised over points.
 
-A bone transform is the rigid map ``x ↦ R x + t`` from rest to posed space (``rot (J,3,3)``, ``trans (J,3)``);
-weights ``(N,J)`` are non-negative with rows summing to 1 (see :func:`normalize_weights`).
-
-- LBS: ``x' = Σ_j w_j (R_j x + t_j)`` — blends matrices, so a 180° twist collapses to the axis (candy wrapper).
-- DQS: each bone is the unit dual quaternion ``q_j + ε q_εj`` with ``q_εj = ½ (0, t_j) q_j``. Per point the bones'
-  dual quaternions are blended with the sign of each flipped to agree with the point's dominant bone (largest
-  weight), divided by the norm ``‖b₀‖`` of the real part, and applied as (b₀ = (a₀, d₀), b_ε = (a_ε, d_ε))
-  ``x' = x + 2 d₀×(d₀×x + a₀x) + 2(a₀d_ε − a_εd₀ + d₀×d_ε)``: always a rigid map, so twists keep their radius.
-
-Quaternions are ``(w, x, y, z)``; a dual quaternion is the row ``(real w,x,y,z, dual w,x,y,z)``.
-Per-point arrays are kept as component rows (``(3,N)``, ``(J,N)``): the blends are then ``(k,J) @ (J,N)`` products,
-which BLAS runs fast and single-threaded (the ``(N,J) @ (J,k)`` form is ~100× slower on a loaded machine).
+Bones are rigid maps ``x ↦ R x + t`` from rest to posed space (``rot (J,3,3)``, ``trans (J,3)`` float); weights
+``(N,J)`` are non-negative with rows summing to 1 (:func:`normalize_weights`). LBS: ``x' = Σ_j w_j (R_j x + t_j)``;
+DQS blends the bones' unit dual quaternions ``(J,8)`` (rows ``real w,x,y,z, dual w,x,y,z``), each sign-aligned with
+the point's dominant bone, and normalises: always rigid per point. Per-point arrays are stored as component rows
+(``(3,N)``, ``(J,N)``) for fast BLAS products. Formulas and reasons: docs/method.md, "Skeleton".
 """
 
 from __future__ import annotations
@@ -26,7 +19,8 @@ SkinningMethod = Literal["dqs", "lbs"]
 
 
 def normalize_weights(weights: np.ndarray, threshold: float = 0.0) -> np.ndarray:
-    """Zero the weights below ``threshold`` (never a row's largest) and rescale each row to sum 1."""
+    """weights (N,J) float → (N,J) float64: negatives clipped to 0, weights below ``threshold`` zeroed (never a row's
+    largest), each row rescaled to sum 1."""
     weights = np.clip(np.asarray(weights, dtype=np.float64), 0.0, None)
     keep = weights >= threshold
     keep[np.arange(len(weights)), weights.argmax(1)] = True
@@ -44,6 +38,7 @@ class Binding:
 
     @classmethod
     def create(cls, points: np.ndarray, weights: np.ndarray) -> "Binding":
+        """points (N,3) float, weights (N,J) float (rows summing to 1) → the binding (float64 component rows)."""
         weights = np.asarray(weights, dtype=np.float64)
         dominant = weights.argmax(1)
         order = np.argsort(dominant, kind="stable")
@@ -58,7 +53,8 @@ class Binding:
 
 
 def dual_quaternions(rot: np.ndarray, trans: np.ndarray) -> np.ndarray:
-    """Unit dual quaternions ``(J,8)`` of the rigid maps ``x ↦ R x + t``."""
+    """rot (J,3,3), trans (J,3) float → unit dual quaternions ``(J,8)`` float64 (real w,x,y,z, dual w,x,y,z) of the
+    rigid maps ``x ↦ R x + t``."""
     xyzw = Rotation.from_matrix(np.asarray(rot, dtype=np.float64).reshape(-1, 3, 3)).as_quat()
     w, v = xyzw[:, 3:], xyzw[:, :3]
     t = np.asarray(trans, dtype=np.float64).reshape(-1, 3)
@@ -74,7 +70,8 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def lbs(binding: Binding, rot: np.ndarray, trans: np.ndarray) -> np.ndarray:
-    """Linear blend skinning ``(N,3)``: blend the 3×4 bone matrices per point, then apply the blend."""
+    """Linear blend skinning: binding of N points, rot (J,3,3), trans (J,3) → posed points ``(N,3)`` float64; blends
+    the 3×4 bone matrices per point, then applies the blend."""
     bones = np.concatenate([np.asarray(rot).reshape(-1, 9), np.asarray(trans).reshape(-1, 3)], axis=1)
     blend = bones.T @ binding.weights_t  # (12, N): rows R00 R01 R02 R10 … R22 t0 t1 t2
     x = binding.points_t
@@ -83,7 +80,8 @@ def lbs(binding: Binding, rot: np.ndarray, trans: np.ndarray) -> np.ndarray:
 
 
 def dqs(binding: Binding, dq: np.ndarray) -> np.ndarray:
-    """Dual-quaternion skinning ``(N,3)`` with bone dual quaternions ``dq (J,8)`` (their signs do not matter)."""
+    """Dual-quaternion skinning: binding of N points, bone dual quaternions ``dq (J,8)`` float (their signs do not
+    matter) → posed points ``(N,3)`` float64."""
     real = dq[:, :4]
     agree = real @ real.T >= 0.0  # agree[k, j]: bone j lies in bone k's hemisphere
     blend = dq.T @ binding.weights_t  # (8, N)
@@ -100,7 +98,8 @@ def dqs(binding: Binding, dq: np.ndarray) -> np.ndarray:
 
 
 def skin(binding: Binding, rot: np.ndarray, trans: np.ndarray, method: SkinningMethod = "dqs") -> np.ndarray:
-    """Posed positions ``(N,3)`` of the bound points under bone transforms ``(rot, trans)`` with ``method``."""
+    """Posed positions ``(N,3)`` float64 of the bound points under bone transforms ``rot (J,3,3)``, ``trans (J,3)``
+    with ``method`` (``"dqs"`` or ``"lbs"``)."""
     if method == "lbs":
         return lbs(binding, rot, trans)
     if method == "dqs":

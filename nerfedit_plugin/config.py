@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.io.atomic import write_text
 
 
@@ -78,17 +79,37 @@ def _value_from_plain(tp: Any, value: Any) -> Any:
     return value
 
 
-def from_plain(cls: type, plain: dict) -> Any:
-    """Inverse of :func:`to_plain` for a config dataclass ``cls``: rebuild it from its plain (YAML) form."""
+def from_plain(cls: type, plain: dict, *, missing: Any = dataclasses.MISSING) -> Any:
+    """Inverse of :func:`to_plain` for a config dataclass ``cls``: rebuild it from its plain (YAML) form. A field
+    absent from ``plain`` takes its default (a config written before the field existed still loads); a required one
+    takes ``missing`` when given (e.g. ``tyro.MISSING``), else the constructor's error is raised."""
     try:
         hints = typing.get_type_hints(cls, include_extras=True)
     except Exception:  # unresolvable forward references (e.g. classes local to a test function)
         hints = {}
     kwargs = {f.name: _value_from_plain(hints.get(f.name, Any), plain[f.name])
-              for f in dataclasses.fields(cls) if f.init and f.name != "_target"}
+              for f in dataclasses.fields(cls) if f.init and f.name != "_target" and f.name in plain}
+    if missing is not dataclasses.MISSING:
+        kwargs.update({f.name: missing for f in dataclasses.fields(cls) if f.init and f.name not in kwargs
+                       and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING})
     return cls(**kwargs)
 
 
 def write_config(path: str | os.PathLike, config: Any) -> None:
     """Write the full config of a run to YAML, atomically."""
     write_text(path, yaml.safe_dump(to_plain(config), sort_keys=False))
+
+
+def read_config(path: str | os.PathLike, what: str) -> dict:
+    """The mapping in the YAML file ``path``; a missing file or one that is not a YAML mapping is a
+    :class:`~nerfedit_plugin.errors.NerfEditError` naming the file (``what`` says what was expected there)."""
+    path = Path(path)
+    if not path.is_file():
+        raise NerfEditError(f"{path}: no such file ({what})")
+    try:
+        config = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise NerfEditError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(config, dict):
+        raise NerfEditError(f"{path}: expected a mapping ({what})")
+    return config

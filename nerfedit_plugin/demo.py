@@ -17,21 +17,23 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 import torch
 
+from nerfedit_plugin.config import write_config
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.bending.deformation_field import DeformationField
-from nerfedit_plugin.edit.job import Stopwatch, run_edit
+from nerfedit_plugin.edit.job import run_edit
 from nerfedit_plugin.training.metrics import evaluate_folders
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover
 from nerfedit_plugin.io.run import extract_mesh, train_run
 from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset, render_ground_truth
 from nerfedit_plugin.render.views import default_render_config, render_views, turntable_cameras, write_gif, write_images
+from nerfedit_plugin.timing import Stopwatch
 
 
 @dataclass(frozen=True)
@@ -82,9 +84,11 @@ def run_demo(
     cache_dir: str | os.PathLike | None = None,
     progress: bool = True,
     on_stage: Callable[[str], None] | None = None,
+    record: Any = None,
 ) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns ``{"out", "seconds" (per stage), "before" and
-    "after" (mean PSNR/SSIM/LPIPS, see the module docstring), "edit" (the edit report), "files"}``, also written to ``out/summary.json``."""
+    "after" (mean PSNR/SSIM/LPIPS, see the module docstring), "edit" (the edit report), "files"}``, also written to ``out/summary.json``;
+    ``record`` (the command line's args) goes to ``out/config.yml``."""
     sizes = PRESETS[preset]
     registry = discover()
     clock = Stopwatch(on_stage)
@@ -142,4 +146,6 @@ def run_demo(
                       "after, ground truth": "renders/after_ground_truth", "turntable": "renders/turntable.gif"},
         }
         (stage / "summary.json").write_text(json.dumps(summary, indent=2))
+        if record is not None:
+            write_config(stage / "config.yml", record)
     return summary

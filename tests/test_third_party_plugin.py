@@ -33,6 +33,8 @@ def on_path(monkeypatch):
 
     def add(folder: Path) -> None:
         monkeypatch.syspath_prepend(str(folder))
+        for name in [n for n in sys.modules if n.startswith(("nerfedit_twist", "nerfedit_wrong"))]:
+            monkeypatch.delitem(sys.modules, name)  # e.g. the copy docs/examples/twist/tests imported from the docs
 
     yield add
     for name in set(sys.modules) - before:
@@ -48,6 +50,7 @@ def test_installed_plugin_is_discovered_and_conforms(twist_site, on_path):
     plugin = registry.plugins[DEFORMERS]["twist"]
     assert (plugin.distribution, plugin.target) == ("nerfedit-twist", "nerfedit_twist:TwistConfig")
     config = registry.config_class(DEFORMERS, "twist")()
+    assert Path(sys.modules["nerfedit_twist"].__file__).parent == twist_site  # the installed copy, not the docs'
     check_deformer(config, edit={"twist": {"axis": [0, 0, 1], "degrees": 90}, "frames": 2},
                    identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}}, skip=("rigid",))
 

@@ -1,16 +1,12 @@
 """Compiled (numba) CPU kernel of :meth:`~nerfedit_plugin.bending.deformation_field.DeformationField.bend`: per point, in
 one parallel pass, the near-grid test, the location in the deformed proxy T' and the mapping to canonical space, or
 the membership test in the rest proxy T (vacated space). The same rules, float expressions and grids as the torch
-path (:meth:`DeformationField._bend_torch`), so the answers are identical; the vectorised torch path pays a pass
-over memory per step and per subset, this one touches each point once.
+path (:meth:`DeformationField._bend_torch`), so the answers are identical; this one touches each point once.
 
-Points go in blocks of ``BLOCK``, one thread per block. A block first computes the near-grid bits of all its points
-in loops the compiler vectorises (indices from 0 over block slices: no negative-index wraparound to test), then
-skips its points eight at a time while their bits are all zero (most render samples are far from the proxies) and
-settles the others in order. Render samples run along rays, so the tet that located the previous point (in T', and
-in T for membership) is tried first: a point it accepts with ``min b ≥ final`` (deep in a safe tet; any acceptance
-for membership) has exactly the answer of the walk or the scan (see :mod:`nerfedit_plugin.bending.locate`); otherwise the
-point is located as usual.
+Points go in blocks of ``BLOCK``, one thread per block: near-grid bits of the whole block first (vectorised loops
+indexed from 0 over block slices), points skipped eight at a time while their bits are zero, and the tet of the
+previous point tried first (a point it accepts with ``min b ≥ final`` has exactly the walk's answer). Why:
+docs/architecture.md, "Ray bending".
 """
 
 from __future__ import annotations

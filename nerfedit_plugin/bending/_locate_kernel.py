@@ -1,18 +1,11 @@
 """Compiled (numba) CPU kernels of :class:`~nerfedit_plugin.bending.locate.TetLocator`: the same walk, the same rule.
 
-The torch implementation in :mod:`nerfedit_plugin.bending.locate` vectorises the walk over points, which costs a pass over
-memory per step; here each point walks on its own in a compiled loop (parallel over points), which is several times
-faster on a CPU. Every value is computed by the same float expression, op by op in the working dtype (numba keeps
-float32 arithmetic in float32 and does not contract ``a * b + c`` without fastmath), so the answers are bit-identical
-to the torch path and to :func:`~nerfedit_plugin.bending.locate.locate_brute_force`; the tests check both.
-
-Scalars of the working dtype (``one``, ``neg_eps``) are passed in, since a Python literal would promote float32 to
-float64. The grid of a locator reaches the kernels as :class:`LocatorArrays` (numpy views of its tensors).
-
-Threads: parallel kernels run on numba's ``workqueue`` layer unless ``NUMBA_THREADING_LAYER`` says otherwise (the
-OpenMP layer shares its runtime with torch's and changes torch's thread count; old TBB builds are refused with a
-warning), one launch at a time (:func:`launch` holds a lock: that layer does not allow concurrent launches), on as
-many threads as torch uses.
+Each point walks on its own in a compiled loop, parallel over points. Every value comes from the same float
+expression as the torch path, op by op in the working dtype, so the answers are bit-identical to it and to
+:func:`~nerfedit_plugin.bending.locate.locate_brute_force`. Scalars of the working dtype (``one``, ``neg_eps``) are
+passed in (a Python literal would promote float32 to float64); a locator's grid arrives as :class:`LocatorArrays`.
+:func:`launch` runs one kernel at a time on numba's ``workqueue`` threading layer (unless ``NUMBA_THREADING_LAYER``
+is set), on as many threads as torch uses. Why: docs/architecture.md, "Point location".
 """
 
 from __future__ import annotations

@@ -1,34 +1,12 @@
-"""DeformationField: a tet proxy in canonical space T and its deformed copies T' (one per frame).
+"""DeformationField: a tet proxy in canonical space T and its deformed copies T' (one per frame); ray bending.
 
-``to_canonical`` maps deformed-space points back to canonical space (ray bending). A point located in deformed
-tet ``t`` with barycentrics ``b`` maps to ``x_c = Σ b_i r_i`` (``r_i`` the rest corners), which equals the
-per-tet affine map ``A_t x + c_t`` and the paper's ``x + Σ b_i (r_i - d_i)``; its Jacobian is
-``A_t = [r1-r0, r2-r0, r3-r0] [d1-d0, d2-d0, d3-d0]^-1``, constant per tet (precomputed in float64, then cast).
-A *still* tet (no corner displaced by more than ``MOVED_TOLERANCE`` of the rest proxy's extent; solvers leave
-~10⁻¹⁶ of noise on pinned vertices) maps by the identity, applied as such: ``x_c = x`` and ``A_t = I`` exactly
-(``Σ b_i r_i`` would add float rounding, enough to move a sample across a grid cell face), so an identity edit, and
-the still part of any edit, changes no sample.
-
-Regions: inside T' -> mapped; outside T' but inside the rest proxy T -> ``empty`` (the space the object left;
-the renderer treats it as empty); outside both -> identity (``x_c = x``, ``J = I``).
-
-Degenerate and inverted deformed tets never crash: point location skips tets of (near) zero volume (see
-:mod:`nerfedit_plugin.bending.locate`), so their points fall to the ``empty``/identity rules; inverted tets are still
-located (barycentrics do not depend on orientation) and map through their affine map, whose Jacobian then has
-a negative determinant; where inverted tets overlap others, the smallest tet index wins.
-
-Cost. A per-frame ``NEAR_CELLS``³ grid over T and T' marks, separately for each proxy, the cells touched by a
-sub-cell in which its point locator may accept a point (padded by 10⁻³ of a cell, far beyond the float error of the
-cell computation) and that one of its tets may reach (:meth:`TetLocator.reach_cells`), and the cells wholly inside
-T: only points in cells marked for T' are located in T'; those not inside T' are empty in cells wholly inside T,
-tested for membership in T (no smallest index needed) in the other cells marked for T, and outside (identity)
-elsewhere. :meth:`DeformationField.bend` returns the deformed tet of each point instead of a ``(M,3,3)`` Jacobian:
-callers gather per-tet matrices (:meth:`DeformationField.jacobian`) only for the points they keep. On the CPU
-(``kernel="auto"``) all of it is one compiled pass per batch (:mod:`nerfedit_plugin.bending._bend_kernel`);
-``kernel="torch"`` runs the same rules vectorised on any device.
-
-Saved as ``deformation.npz`` (``format_version``, ``rest_vertices``, ``tets``, ``deformed_vertices``); it loads
-without the deformer that made it. Locators and grids are built lazily (one per frame on T', one on T) and cached.
+``to_canonical(x (M,3), frame)`` maps deformed-space points to canonical space: a point in deformed tet ``t`` with
+barycentrics ``b`` maps to ``x_c = Σ b_i r_i`` (``r_i`` the rest corners), the affine map ``A_t x + c_t`` with
+Jacobian ``A_t = [r1-r0, r2-r0, r3-r0] [d1-d0, d2-d0, d3-d0]^-1``. Inside T' → mapped; outside T' but inside the
+rest proxy T → ``empty`` (vacated); outside both → identity (``x_c = x``, ``J = I``). *Still* tets (no corner moved
+by more than ``MOVED_TOLERANCE`` × the rest proxy's extent) map by the exact identity. Saved as ``deformation.npz``:
+``rest_vertices (N,3)``, ``tets (K,4)``, ``deformed_vertices (F,N,3)``. Semantics, degenerate and inverted tets,
+and the near-grid fast path: docs/architecture.md, "Ray bending".
 """
 
 from __future__ import annotations
@@ -145,7 +123,11 @@ def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor
 
 
 class DeformationField:
-    """Tet proxy in canonical space T plus its deformed copies T' per frame; maps deformed-space points to canonical."""
+    """Tet proxy in canonical space T plus its deformed copies T' per frame; maps deformed-space points to canonical.
+
+    ``rest_vertices (N,3)``, ``tets (K,4)`` int, ``deformed_vertices (F,N,3)`` (or ``(N,3)`` for one frame), arrays
+    or tensors, stored as float64 / int64 numpy arrays; points are mapped in ``dtype`` on ``device``.
+    """
 
     def __init__(self, rest_vertices, tets, deformed_vertices, *, device="cpu", dtype=torch.float32,
                  kernel: str = "auto"):
@@ -165,7 +147,7 @@ class DeformationField:
         return len(self.deformed_vertices)
 
     def offsets(self, frame: int) -> np.ndarray:
-        """``rest - deformed[frame]`` (N,3): the paper's barycentric offsets."""
+        """``rest - deformed[frame]`` (N,3) float64: the paper's barycentric offsets."""
         return self.rest_vertices - self.deformed_vertices[self._check_frame(frame)]
 
     def still_tets(self, frame: int = 0) -> np.ndarray:
@@ -180,10 +162,10 @@ class DeformationField:
         return self._still[frame]
 
     def moved_bounds(self, frame: int = 0) -> np.ndarray | None:
-        """``(2,3)`` bounding box of the deformed corners of the tets of ``frame`` that are not still; None if all
-        are. Every other point of space maps to itself or is vacated, so content appears elsewhere than at its rest
-        place only inside this box (the renderer's sampling box adds it to the scene box; an identity edit adds
-        nothing)."""
+        """``(2,3)`` float64 (lo, hi) bounding box of the deformed corners of the tets of ``frame`` that are not still;
+        None if all are. Every other point of space maps to itself or is vacated, so content appears elsewhere than
+        at its rest place only inside this box (the renderer's sampling box adds it to the scene box; an identity
+        edit adds nothing)."""
         frame = self._check_frame(frame)
         if frame not in self._moved:
             corners = self.deformed_vertices[frame][self.tets[~self.still_tets(frame)]].reshape(-1, 3)
@@ -230,7 +212,8 @@ class DeformationField:
         """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space; report each point's deformed tet
         (see the module docstring; ``tet`` is None with ``tets=False``, for callers that need no Jacobian). ``out``:
         an ``(M,3)`` tensor that receives ``x_c`` (and is returned as ``points``); it may be ``x`` itself, to bend
-        in place. Otherwise ``x`` is not modified."""
+        in place. Otherwise ``x`` is not modified. → :class:`BentPoints`: ``points (M,3)`` (the field's dtype),
+        ``tet (M,)`` int64 or None, ``empty (M,)`` bool."""
         mapping = self._frame(frame)
         x = torch.as_tensor(x)
         if out is not None and out.shape != (len(x), 3):
@@ -287,13 +270,16 @@ class DeformationField:
         return tet, empty
 
     def jacobian(self, tet: torch.Tensor, frame: int = 0) -> torch.Tensor:
-        """``(M,3,3)`` dx_c/dx of points in deformed tets ``tet (M,)`` of ``frame`` (identity where ``tet`` is -1)."""
+        """tet (M,) int64 → ``(M,3,3)`` dx_c/dx (the field's dtype and device) of points in deformed tets ``tet`` of
+        ``frame`` (identity where ``tet`` is -1)."""
         table = self._frame(frame).jacobian
         tet = torch.as_tensor(tet, device=self.device)
         return table.index_select(0, torch.where(tet >= 0, tet, len(table) - 1))
 
     def to_canonical(self, x: torch.Tensor, frame: int = 0) -> CanonicalPoints:
-        """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space (see the module docstring)."""
+        """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space (see the module docstring) →
+        :class:`CanonicalPoints`: ``points (M,3)``, ``inside (M,)`` bool, ``empty (M,)`` bool, ``jacobian (M,3,3)``,
+        in the field's dtype (float32 by default) on its device."""
         bent = self.bend(x, frame)
         return CanonicalPoints(bent.points, bent.tet >= 0, bent.empty, self.jacobian(bent.tet, frame))
 
@@ -326,6 +312,6 @@ class DeformationField:
 
     @classmethod
     def identity(cls, vertices, tets, n_frames: int = 1, **kwargs) -> "DeformationField":
-        """Every frame equal to the rest proxy."""
+        """vertices (N,3), tets (K,4) → a field whose ``n_frames`` frames all equal the rest proxy."""
         vertices = np.asarray(vertices, dtype=np.float64)
         return cls(vertices, tets, np.repeat(vertices[None], n_frames, axis=0), **kwargs)

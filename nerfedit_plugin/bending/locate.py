@@ -1,34 +1,11 @@
-"""Exact point location in a tetrahedral mesh: a uniform grid of per-cell tet lists (CSR), in torch.
+"""Exact point location in a tetrahedral mesh: :class:`TetLocator` (a uniform grid of per-cell tet lists plus a
+walk across faces) and :func:`locate_brute_force` (the oracle), in torch.
 
-Containment rule (shared bit for bit by :class:`TetLocator` and :func:`locate_brute_force`):
-point ``p`` lies in tet ``t`` iff ``min_i b_i(p) >= -eps``, with barycentrics
-``(b1, b2, b3) = Minv_t (p - v0_t)``, ``b0 = 1 - (b1 + b2 + b3)`` evaluated one element-wise op at a time in
-the working dtype; when several tets contain ``p`` (shared faces, edges, vertices) the smallest index wins.
-``eps`` (:data:`EPS`) is 1e-5 in float32 and 1e-12 in float64, above the rounding error of ``b`` (about
-4 u κ, κ = ||Minv||·extent ≈ 3–10 for reasonable tets), so points on shared faces never fall into a crack.
-
-``Minv_t`` is computed in float64 from the vertices *as rounded to the working dtype*, so neighbouring tets
-share exactly the same face planes. Tets whose barycentrics cannot be evaluated to 1 % in the working dtype
-(zero or near-zero volume: ``16 u κ > 1e-2``) are skipped by both paths and never contain a point.
-
-Grid. A tet is registered in each cell that its bounding box overlaps, the box inflated by the farthest a point
-can lie outside the tet and still pass the rule (``4 tol × extent``, ``tol = eps + 16 u κ``), minus the cells
-lying entirely beyond one of its face planes by ``tol`` (a conservative test in float64). Box corners and points
-get cells from the same monotone float expression, so a point always lands in a cell whose list holds every tet
-that can contain it. Cells where the mesh ends also keep a 64-bit mask of their 4x4x4 sub-cells that some tet
-may reach (same two tests); points in a cleared sub-cell are outside every tet.
-
-Fast exact answer. A point starts at the primary tet of its cell octant (the one deepest at the octant centre)
-and walks across the face of its most negative barycentric for a few steps. The first tet that accepts it is the
-brute-force answer when the point is *deep* in it (``min b >= DEEP``) and the tet is *safe*: at build time it
-was shown (separating axis test on the tet shrunk by ``DEEP`` and the other grown by ``tol``) that no
-lower-index tet sharing a cell with it can accept a point that deep in it. Every other point (near a face,
-accepted by an unsafe tet, e.g. one overlapping an inverted neighbour, or a walk that leaves the mesh) is
-finished by brute force over its cell list: the smallest accepting index, i.e. the rule restricted to the only
-tets that can contain it.
-
-Membership (:meth:`TetLocator.member`, ``locate(p)[0] >= 0``) needs no smallest index: the walk's first
-accepting tet settles it, whatever its depth or safety; only walks that leave the mesh or run out of rounds scan.
+Rule, shared bit for bit by both: point ``p`` lies in tet ``t`` iff ``min_i b_i(p) >= -eps`` (barycentrics ``b``
+evaluated one element-wise op at a time in the working dtype; ``eps`` = :data:`EPS`); when several tets contain
+``p`` the smallest index wins; tets of (near) zero volume never contain a point.
+``TetLocator(vertices (N,3), tets (K,4)).locate(points (M,3)) → (tet (M,) int64, -1 outside; bary (M,4))``.
+The grid, the walk and why its answer equals brute force: docs/architecture.md, "Point location".
 """
 
 from __future__ import annotations
@@ -174,7 +151,8 @@ def _separated(table: _TetTable, a: torch.Tensor, b: torch.Tensor) -> torch.Tens
 class TetLocator:
     """Exact point-in-tetrahedron location accelerated by a uniform grid (per-cell tet lists in CSR form).
 
-    ``cells_per_tet`` sets the grid resolution: cubic cells of the mean tet volume divided by it (capped at 4M
+    ``vertices (N,3)`` float (tensor or array; rounded to the working ``dtype``, float32 or float64), ``tets (K,4)``
+    int. ``cells_per_tet`` sets the grid resolution: cubic cells of the mean tet volume divided by it (capped at 4M
     cells). Every point starts at its cell octant's primary tet and walks at most ``rounds`` steps across the face
     its barycentrics point to, stopping as soon as a safe tet accepts it deeply; the others are finished by testing
     their whole cell list. ``kernel``: ``"torch"`` runs the walk vectorised over chunks of ``chunk`` points on any
@@ -465,7 +443,8 @@ class TetLocator:
         return self._table.usable & ~unsafe
 
     def locate(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """-> ``(tet (M,) int64, -1 outside every tet; bary (M,4) in that tet, 0 where -1)``.
+        """points (M,3) (any float; cast to the working dtype) → ``(tet (M,) int64, -1 outside every tet;
+        bary (M,4) working dtype, in that tet, 0 where -1)``.
 
         ``bary`` is a transposed view of a ``(4, M)`` buffer (non-contiguous)."""
         points = _as_tensor(points, self.dtype, self.device).reshape(-1, 3)
@@ -473,8 +452,8 @@ class TetLocator:
         return self._run(points, bary), bary.t()
 
     def member(self, points: torch.Tensor) -> torch.Tensor:
-        """``(M,)`` int64: *some* tet accepting the point, -1 where none; ``>= 0`` exactly where ``locate``'s is.
-        Faster: the walk stops at the first accepting tet, no barycentrics."""
+        """points (M,3) → ``(M,)`` int64: *some* tet accepting the point, -1 where none; ``>= 0`` exactly where
+        ``locate``'s is. Faster: the walk stops at the first accepting tet, no barycentrics."""
         return self._run(_as_tensor(points, self.dtype, self.device).reshape(-1, 3), None)
 
     @functools.cached_property
@@ -584,7 +563,8 @@ def box_cells(first: torch.Tensor, last: torch.Tensor) -> tuple[torch.Tensor, to
 
 
 def expand_ranges(counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(owner, local)`` enumerating ``range(counts[i])`` for every ``i``, concatenated."""
+    """counts (B,) int64 → ``(owner (P,), local (P,))`` int64, ``P = Σ counts``: ``range(counts[i])`` for every ``i``,
+    concatenated (``local``), with ``i`` repeated alongside (``owner``)."""
     owner = torch.repeat_interleave(torch.arange(len(counts), device=counts.device), counts)
     local = torch.arange(len(owner), device=counts.device) - (torch.cumsum(counts, 0) - counts).index_select(0, owner)
     return owner, local
@@ -617,7 +597,9 @@ def _batches(counts: torch.Tensor) -> list[tuple[int, int]]:
 
 
 def locate_brute_force(vertices, tets, points, dtype: torch.dtype = torch.float32, chunk: int = 1 << 22):
-    """The oracle: test every usable tet for every point (chunked), same rule as :class:`TetLocator`."""
+    """The oracle: test every usable tet for every point (chunked), same rule as :class:`TetLocator`.
+
+    vertices (N,3), tets (K,4) int, points (M,3) → ``(tet (M,) int64, -1 outside; bary (M,4) dtype, 0 where -1)``."""
     table = _TetTable(vertices, tets, dtype, points.device if isinstance(points, torch.Tensor) else None)
     points = _as_tensor(points, dtype, table.device).reshape(-1, 3)
     m, k = len(points), len(table)

@@ -1,18 +1,10 @@
 """Multi-view image datasets: Blender / NeRF-synthetic and nerfstudio ``transforms`` files (read and write).
 
-One parser reads both formats; they differ only in where the intrinsics live:
-
-- Blender: ``transforms_{train,val,test}.json`` with a global ``camera_angle_x`` (horizontal FOV, radians; square
-  pixels, centred principal point) and frames ``{"file_path": "./train/r_0", "transform_matrix": 4x4}``; the
-  image size comes from ``w``/``h`` keys when present (instant-ngp style, written by our generator), else from the
-  first image. A ``file_path`` without an existing file gets ``.png`` appended.
-- nerfstudio: one ``transforms.json`` with ``fl_x, fl_y, cx, cy, w, h`` (per-frame keys override the global ones),
-  ``file_path`` relative to the file. It has no split files: a split selects the frames listed in the top-level
-  ``{split}_filenames`` (nerfstudio's convention) or frames whose ``"split"`` key equals it; without either, every
-  split is all frames. Lens distortion (non-zero ``k1..k4, p1, p2``) and non-pinhole models are rejected.
-
-``transform_matrix`` is OpenGL camera-to-world in both (see :mod:`nerfedit_plugin.data.cameras`). RGBA images are
-composited over a chosen background: ``rgb·α + background·(1 − α)`` (PNG alpha is straight, not premultiplied).
+One parser reads both: Blender (``transforms_{train,val,test}.json``, a global ``camera_angle_x``) and nerfstudio
+(one ``transforms.json`` with ``fl_x, fl_y, cx, cy, w, h``; splits by ``{split}_filenames`` or a per-frame
+``"split"`` key). ``transform_matrix`` is OpenGL camera-to-world in both (:mod:`nerfedit_plugin.data.cameras`).
+RGBA images are composited ``rgb·α + background·(1 − α)`` (straight alpha). The full format, what is inferred and
+what is rejected: docs/architecture.md, "Datasets".
 """
 
 from __future__ import annotations
@@ -61,12 +53,17 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     return np.ascontiguousarray(rgb), alpha
 
 
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """image (..., C) float in [0,1] (clipped) → (..., C) uint8, rounded to the nearest of 0..255."""
+    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
 def write_rgba(path: str | os.PathLike, rgb: np.ndarray, alpha: np.ndarray) -> None:
     """Write straight (non-premultiplied) ``rgb (H,W,3)`` and ``alpha (H,W)`` in [0,1] as an 8-bit RGBA PNG."""
     import skimage.io
 
     rgba = np.concatenate([rgb, alpha[..., None]], axis=-1)
-    skimage.io.imsave(path, np.round(np.clip(rgba, 0.0, 1.0) * 255.0).astype(np.uint8), check_contrast=False)
+    skimage.io.imsave(path, to_uint8(rgba), check_contrast=False)
 
 
 def composite(rgb: np.ndarray, alpha: np.ndarray | None, background) -> np.ndarray:

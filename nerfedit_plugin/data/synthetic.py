@@ -24,6 +24,7 @@ from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
 from nerfedit_plugin.config import write_config
 from nerfedit_plugin.data.datasets import SPLITS, block_mean, blender_transforms, read_transforms, write_rgba
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 RAYS_PER_CHUNK = 1 << 21
@@ -81,19 +82,16 @@ def render_mesh(
     colour); ``alpha`` = fraction of the ``supersample``² sub-pixel rays that hit; ``depth`` = distance along the
     unit pixel-centre ray of :func:`generate_rays` to the first hit, ``inf`` where it misses.
     """
-    import open3d as o3d
-
     if mesh.vertex_colors is None:
         raise NerfEditError("mesh: has no vertex colours to render (see synthetic.colorize)")
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(mesh.vertices.astype(np.float32), mesh.faces.astype(np.uint32))
+    scene = raycast.raycasting_scene(mesh.vertices, mesh.faces)
     colors, faces = mesh.vertex_colors.astype(np.float32), mesh.faces
     fine = cameras.upscale(supersample)
     background = np.asarray(background, dtype=np.float32)
 
     def cast(cams: Cameras, index: torch.Tensor) -> dict[str, np.ndarray]:
         rays = torch.cat(generate_rays(cams, index), dim=-1).cpu().numpy()  # Open3D layout: origin, direction
-        return {k: v.numpy() for k, v in scene.cast_rays(o3d.core.Tensor(rays)).items()}
+        return raycast.cast_rays(scene, rays)
 
     rgb, alpha, depth = [], [], []
     chunk = max(1, RAYS_PER_CHUNK // (fine.width * fine.height))

@@ -11,10 +11,8 @@ import dataclasses
 import json
 import os
 import shutil
-import time
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.config import to_plain, write_config
@@ -24,6 +22,7 @@ from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy
+from nerfedit_plugin.timing import Stopwatch
 
 
 def default_cache_dir() -> Path:
@@ -37,22 +36,6 @@ def default_cache_dir() -> Path:
 class EditResult:
     out: Path
     report: dict
-
-
-class Stopwatch:
-    """Named stage timings; ``stage(name)`` also notifies an optional callback (progress display)."""
-
-    def __init__(self, on_stage: Callable[[str], None] | None = None) -> None:
-        self.seconds: dict[str, float] = {}
-        self.on_stage = on_stage
-
-    @contextmanager
-    def stage(self, name: str) -> Iterator[None]:
-        if self.on_stage:
-            self.on_stage(name)
-        start = time.perf_counter()
-        yield
-        self.seconds[name] = round(time.perf_counter() - start, 4)
 
 
 def run_edit(

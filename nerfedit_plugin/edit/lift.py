@@ -1,20 +1,12 @@
-"""Lift: carry a surface deformation S → S' into the tet proxy T → T' (DESIGN.md §3 "Lift").
+"""Lift: carry a surface deformation S → S' into the tet proxy T → T' (paper Eq. 3).
 
-Methods:
-
-- ``tet-arap`` (default, paper Eq. 3): volumetric ARAP (per-tet rotations, ELEMENTS) with the barycentric
-  constraints ``A t' = v'`` as a stiff soft penalty ``E_ARAP(t') + w‖A t' − v'‖²``. The surface usually has more
-  vertices than the proxy, so the hard system is over-determined (rank-deficient KKT); the penalty gives the
-  least-squares fit near the surface and ARAP everywhere else, with one factorisation reused across frames.
-  Frames are warm-started from the previous frame (the first from the ``knn3`` lift).
-- ``closest-point``: each tet vertex moves like the closest point of the rest surface (barycentric blend of its
-  triangle's displacements) — the paper's "Closest Point" baseline, lifted to the proxy.
-- ``knn3``: inverse-distance blend of the displacements of the 3 nearest surface vertices (the paper's "3NN").
-- ``tet-edit``: the edit spec's handles are applied to the proxy vertices and the proxy is deformed by
-  volumetric ARAP directly (the paper's ablation); the surface is not used.
-- ``direct``: the deformer evaluates its own space map at the proxy vertices (cage, skeleton, ...).
-
-Every lift reports, per frame, the constraint residual ``|A t' − v'|`` and the inverted / degenerate tets of T'.
+``Lift(proxy, rest, method)(frames (F,V,3) float64) → (proxy frames (F,N,3) float64, one FrameReport per frame)``.
+Methods (:data:`LiftMethod`): ``tet-arap`` (default: volumetric ARAP, per-tet rotations, with the barycentric
+constraints ``A t' = v'`` as the stiff penalty ``E_ARAP(t') + w‖A t' − v'‖²``, warm-started frame to frame),
+``closest-point`` and ``knn3`` (the paper's baselines, evaluated at the proxy vertices), ``tet-edit`` (the spec's
+handles applied to the proxy, volumetric ARAP: the paper's ablation) and ``direct`` (the deformer's
+``deform_points`` at the proxy vertices). Every lift reports, per frame, the residual ``|A t' − v'|`` and the
+inverted / degenerate tets of T'. Why a penalty: docs/method.md, "The lift".
 """
 
 from __future__ import annotations
@@ -30,8 +22,10 @@ from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.edit.deformer import Deformer
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.edit.proxy import TetProxy, tet_signed_volumes
+from nerfedit_plugin.geometry.tets import tet_signed_volumes
+from nerfedit_plugin.edit.proxy import TetProxy
 
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
@@ -63,13 +57,15 @@ class FrameReport:
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unnormalised triangle normals ``(b − a) × (c − a)``."""
+    """vertices (V,3) float64, faces (F,3) int64 → (F,3) float64 unnormalised triangle normals ``(b − a) × (c − a)``
+    (length = twice the area)."""
     a, b, c = (vertices[faces[:, i]] for i in range(3))
     return np.cross(b - a, c - a)
 
 
 def knn3_displacements(rest: np.ndarray, moved: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Inverse-distance blend of the displacements of the 3 nearest ``rest`` points, evaluated at ``points``."""
+    """rest (V,3) float64, moved (V,3) float64, points (M,3) float64 → (M,3) float64: at each point, the
+    inverse-distance blend of the displacements ``moved − rest`` of its 3 nearest ``rest`` points."""
     dist, idx = cKDTree(rest).query(points, k=3)
     weights = 1.0 / np.maximum(dist, 1e-12)
     weights /= weights.sum(1, keepdims=True)
@@ -77,15 +73,10 @@ def knn3_displacements(rest: np.ndarray, moved: np.ndarray, points: np.ndarray) 
 
 
 def closest_point_displacements(rest: SurfaceMesh, moved: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Displacement of the closest point of the rest surface (barycentric in its triangle) at ``points``."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(rest.vertices.astype(np.float32), rest.faces.astype(np.uint32))
-    hit = scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
-    tri = rest.faces[hit["primitive_ids"].numpy().astype(np.int64)]
-    uv = hit["primitive_uvs"].numpy().astype(np.float64)
-    bary = np.column_stack([1.0 - uv.sum(1), uv])
+    """rest SurfaceMesh (V vertices), moved (V,3) float64, points (M,3) float64 → (M,3) float64: at each point, the
+    displacement of the closest point of the rest surface (barycentric blend of its triangle's displacements)."""
+    triangle, bary = raycast.closest_points(raycast.raycasting_scene(rest.vertices, rest.faces), points)
+    tri = rest.faces[triangle]
     return np.einsum("mk,mkd->md", bary, (moved - rest.vertices)[tri])
 
 
@@ -125,7 +116,8 @@ class Lift:
             self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)
 
     def frame(self, index: int, surface: np.ndarray, previous: np.ndarray | None) -> tuple[np.ndarray, int]:
-        """Deformed proxy vertices for one frame (and the ARAP iteration count, 0 for direct methods)."""
+        """Frame ``index``: surface (V,3) float64, previous proxy frame (N,3) float64 or None (warm start) →
+        (deformed proxy vertices (N,3) float64, ARAP iteration count; 0 for the direct methods)."""
         method, proxy = self.method, self.proxy
         if method == "knn3":
             return proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices), 0
@@ -143,6 +135,9 @@ class Lift:
         return result.vertices, result.iterations
 
     def report(self, deformed: np.ndarray, surface: np.ndarray, iterations: int, seconds: float) -> FrameReport:
+        """deformed proxy (N,3) float64, surface (V,3) float64 → the frame's :class:`FrameReport` (residual
+        ``|A t' − v'|`` per surface vertex, relative to the rest bbox diagonal; inverted / degenerate tets by signed
+        volume; surface faces turned by more than 90°)."""
         scale = self.rest.bbox_diagonal
         residual = np.linalg.norm(self.embedding @ deformed - surface, axis=1) / scale
         volumes = tet_signed_volumes(deformed, self.proxy.tets)
@@ -159,7 +154,7 @@ class Lift:
         )
 
     def __call__(self, frames: np.ndarray) -> tuple[np.ndarray, list[FrameReport]]:
-        """Lift surface frames ``(F, V, 3)`` → proxy frames ``(F, N, 3)`` and one report per frame."""
+        """Lift surface frames ``(F,V,3)`` float → proxy frames ``(F,N,3)`` float64 and one report per frame."""
         out, reports, previous = [], [], None
         for index, surface in enumerate(np.asarray(frames, dtype=np.float64)):
             start = time.perf_counter()

@@ -16,10 +16,8 @@ import dataclasses
 import hashlib
 import json
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import scipy.sparse
@@ -27,12 +25,18 @@ import scipy.sparse
 from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these lived here before geometry.tets)
+    DEGENERATE_VOLUME_RATIO,
+    boundary_faces,
+    clean_tets,
+    distance_to_boundary,
+    tet_signed_volumes,
+)
+from nerfedit_plugin.geometry.wrap import wrap_and_decimate
+from nerfedit_plugin.timing import Stopwatch
 
 PROXY_FORMAT = 1
 """Version of the build algorithm and file layout; part of the cache key (bump to invalidate old caches)."""
-
-DEGENERATE_VOLUME_RATIO = 1e-8
-"""Tets with volume <= this x the median tet volume count as zero-volume and are dropped."""
 
 
 @dataclass
@@ -80,35 +84,13 @@ class ProxyConfig:
             raise NerfEditError(f"proxy.offset_growth: must be > 1, got {self.offset_growth}")
 
 
-def tet_signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Signed volumes ((b-a) x (c-a)) . (d-a) / 6 of tets ``(K,4)``; positive = positively oriented."""
-    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
-
-
-def boundary_faces(tets: np.ndarray) -> np.ndarray:
-    """Triangles ``(B,3)`` that belong to exactly one tet, oriented outward for positively oriented tets."""
-    faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
-    _, inverse, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
-    return faces[counts[inverse.ravel()] == 1]
-
-
-def distance_to_boundary(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Unsigned distance ``(M,)`` from ``points`` to the boundary surface of the tet mesh (Open3D, float32)."""
-    import open3d as o3d
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(boundary_faces(tets).astype(np.uint32))
-    )
-    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy().astype(np.float64)
-
-
 @dataclass
 class TetProxy:
     """Tet mesh (positively oriented, no zero-volume tets), the cage it fills, and the surface embedding.
 
-    Surface vertex ``i`` = ``sum_j embed_bary[i, j] * vertices[tets[embed_tets[i], j]]``.
+    ``vertices (N,3) float64``, ``tets (K,4) int64``, ``cage`` (a SurfaceMesh), ``embed_tets (V,) int64`` (the tet of
+    each surface vertex), ``embed_bary (V,4) float64`` (its barycentrics there): surface vertex ``i`` =
+    ``sum_j embed_bary[i, j] * vertices[tets[embed_tets[i], j]]``.
     """
 
     vertices: np.ndarray
@@ -121,7 +103,8 @@ class TetProxy:
     times in seconds, dropped degenerate tets, cage face count."""
 
     def embedding_matrix(self) -> scipy.sparse.csr_matrix:
-        """Sparse A (V x N) with the barycentrics of each surface vertex in its row: ``A @ vertices == surface``."""
+        """→ sparse ``A (V,N)`` float64 CSR, the four barycentrics of each surface vertex in its row:
+        ``A @ vertices == surface`` (the paper's barycentric matrix)."""
         n_surface = len(self.embed_tets)
         return scipy.sparse.csr_matrix(
             (self.embed_bary.ravel(), self.tets[self.embed_tets].ravel(), np.arange(0, 4 * n_surface + 1, 4)),
@@ -187,7 +170,8 @@ class TetProxy:
 
 
 def resolve_offset(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None) -> float:
-    """The cage offset: ``config.offset``, else a fraction of ``camera_distance``, else of the bbox diagonal."""
+    """→ the cage offset (float, mesh units): ``config.offset``, else a fraction of ``camera_distance``, else of the
+    bbox diagonal."""
     if config.offset is not None:
         return float(config.offset)
     if camera_distance is not None:
@@ -195,14 +179,6 @@ def resolve_offset(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: floa
             raise NerfEditError(f"camera distance: must be a positive number, got {camera_distance!r}")
         return float(config.offset_camera_fraction * camera_distance)
     return float(config.offset_bbox_fraction * mesh.bbox_diagonal)
-
-
-@contextlib.contextmanager
-def _stage(times: dict[str, float], name: str) -> Iterator[None]:
-    """Add the wall time of the block to ``times[name]`` (stages repeat across attempts)."""
-    start = time.perf_counter()
-    yield
-    times[name] = times.get(name, 0.0) + time.perf_counter() - start
 
 
 def _check_mesh(mesh: SurfaceMesh) -> None:
@@ -228,42 +204,18 @@ def _wrap_input(mesh: SurfaceMesh, size: float) -> tuple[np.ndarray, np.ndarray]
 
 
 def build_cage(mesh: SurfaceMesh, offset: float, config: ProxyConfig, times: dict | None = None) -> SurfaceMesh:
-    """Watertight cage at distance ~``offset`` outside ``mesh``: alpha wrap, then quadric decimation."""
-    import pymeshlab
-
-    times = {} if times is None else times
+    """Watertight cage at distance ~``offset`` outside ``mesh``: alpha wrap, then quadric decimation to
+    ``config.cage_faces`` (stage times added to ``times``)."""
     vertices, faces = _wrap_input(mesh, offset)
-    meshset = pymeshlab.MeshSet()
-    meshset.add_mesh(pymeshlab.Mesh(vertices, faces.astype(np.int32)))
-    with _stage(times, "wrap"):
-        meshset.generate_alpha_wrap(
-            alpha=pymeshlab.PureValue(config.wrap_alpha_factor * offset), offset=pymeshlab.PureValue(offset)
-        )
-    with _stage(times, "decimate"):
-        if meshset.current_mesh().face_number() > config.cage_faces:
-            meshset.meshing_decimation_quadric_edge_collapse(
-                targetfacenum=config.cage_faces, preservetopology=True, preservenormal=True
-            )
-    wrapped = meshset.current_mesh()
-    return SurfaceMesh(wrapped.vertex_matrix(), wrapped.face_matrix())
-
-
-def clean_tets(vertices: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Reorient tets to positive volume, drop zero-volume ones (<= DEGENERATE_VOLUME_RATIO x median) and
-    unreferenced vertices. Returns ``(vertices, tets, n_dropped)``."""
-    tets = np.asarray(tets, dtype=np.int64).copy()
-    volumes = tet_signed_volumes(vertices, tets)
-    negative = volumes < 0
-    tets[negative] = tets[negative][:, [0, 2, 1, 3]]
-    magnitude = np.abs(volumes)
-    keep = magnitude > DEGENERATE_VOLUME_RATIO * np.median(magnitude) if len(tets) else magnitude > 0
-    tets = tets[keep]
-    used, tets = np.unique(tets, return_inverse=True)
-    return np.ascontiguousarray(vertices[used], dtype=np.float64), tets.reshape(-1, 4), int((~keep).sum())
+    return wrap_and_decimate(
+        vertices, faces, config.wrap_alpha_factor * offset, offset, max_faces=config.cage_faces, preserve_normal=True,
+        clock=Stopwatch(seconds=times, digits=None),
+    )
 
 
 def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Raw pytetwild tet mesh of the cage (``optimize=True``; orientation as pytetwild returns it).
+    """cage (a closed SurfaceMesh) → raw pytetwild tet mesh ``(vertices (N,3) float64, tets (K,4) int64)``
+    (``optimize=True``; orientation as pytetwild returns it).
 
     Runs in a scratch folder: fTetWild drops ``__tracked_surface.stl`` into the working directory.
     """
@@ -280,7 +232,8 @@ def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, 
 
 
 def embed_points(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact float64 point location: ``(tet (M,) int64, -1 outside; bary (M,4) float64)``."""
+    """Exact float64 point location: vertices (N,3) float64, tets (K,4) int64, points (M,3) float →
+    ``(tet (M,) int64, -1 outside; bary (M,4) float64, 0 where -1)``."""
     import torch
 
     from nerfedit_plugin.bending.locate import TetLocator
@@ -302,17 +255,18 @@ def build_proxy(
     _check_mesh(mesh)
     offset = resolve_offset(mesh, config, camera_distance)
     times: dict[str, float] = {}
+    clock = Stopwatch(seconds=times, digits=None)  # stages repeat across attempts: their times add up
     for attempt in range(1, config.max_attempts + 1):
         cage = build_cage(mesh, offset, config, times)
-        with _stage(times, "tetwild"):
+        with clock.stage("tetwild"):
             raw_vertices, raw_tets = tetrahedralize(cage, config)
-        with _stage(times, "clean"):
+        with clock.stage("clean"):
             vertices, tets, n_dropped = clean_tets(raw_vertices, raw_tets)
-        with _stage(times, "embed"):
+        with clock.stage("embed"):
             embed_tets, embed_bary = embed_points(vertices, tets, mesh.vertices)
         n_outside = int((embed_tets < 0).sum())
         if n_outside == 0:
-            with _stage(times, "margin"):
+            with clock.stage("margin"):
                 margin = float(distance_to_boundary(vertices, tets, mesh.vertices).min()) / offset
             if margin >= config.min_margin:
                 info = {
@@ -337,7 +291,8 @@ def build_proxy(
 
 
 def proxy_cache_key(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None) -> str:
-    """sha256 of the mesh arrays and every parameter that changes the build (the offset as resolved)."""
+    """→ hex sha256 (64 characters) of the mesh arrays and every parameter that changes the build (the offset as
+    resolved); the file name of the proxy in the cache."""
     _check_mesh(mesh)
     params = dataclasses.asdict(config)
     for name in ("offset", "offset_camera_fraction", "offset_bbox_fraction"):

@@ -1,4 +1,5 @@
-"""Edit specs (DESIGN.md §4): handle selections, transforms and frame interpolation, parsed from JSON or YAML.
+"""Edit specs (docs/architecture.md, "Edit spec"): handle selections, transforms and frame interpolation, from JSON
+or YAML.
 
 A handle selects rest-space points (``box``, ``sphere`` or ``indices``) and either pins them (``"fixed": true``)
 or moves them by a transform. At interpolation time t ∈ [0, 1] a transform maps
@@ -26,42 +27,51 @@ from nerfedit_plugin.errors import NerfEditError
 SELECT_KINDS = ("box", "sphere", "indices")
 
 
-def _error(source: str, key: str, problem: str) -> NerfEditError:
+def spec_error(source: str, key: str, problem: str) -> NerfEditError:
+    """The error for a bad spec entry: ``"<source>: <key>: <problem>"`` (``source`` the file, ``key`` its dotted
+    path, e.g. ``handles[0].select.box.min``)."""
     return NerfEditError(f"{source}: {key}: {problem}")
 
 
-def _check_keys(obj: Any, allowed: Iterable[str], source: str, key: str, required: Iterable[str] = ()) -> dict:
+def check_keys(obj: Any, allowed: Iterable[str], source: str, key: str, required: Iterable[str] = ()) -> dict:
+    """``obj`` itself if it is a mapping whose keys are all ``allowed`` and include every ``required`` one, else
+    :func:`spec_error` naming the first offending key (``key`` "" for the top level)."""
     if not isinstance(obj, dict):
-        raise _error(source, key, f"expected a mapping, got {type(obj).__name__}")
+        raise spec_error(source, key, f"expected a mapping, got {type(obj).__name__}")
     allowed = set(allowed)
     for name in obj:
         if name not in allowed:
-            raise _error(source, f"{key}.{name}" if key else str(name), f"unknown key (expected one of {sorted(allowed)})")
+            raise spec_error(
+                source, f"{key}.{name}" if key else str(name), f"unknown key (expected one of {sorted(allowed)})"
+            )
     for name in required:
         if name not in obj:
-            raise _error(source, f"{key}.{name}" if key else name, "missing")
+            raise spec_error(source, f"{key}.{name}" if key else name, "missing")
     return obj
 
 
-def _vector(value: Any, source: str, key: str, n: int = 3) -> np.ndarray:
+def vector(value: Any, source: str, key: str, n: int = 3) -> np.ndarray:
+    """``value`` (a list of ``n`` finite numbers) → (n,) float64, else :func:`spec_error` naming ``key``."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise _error(source, key, f"expected {n} numbers, got {value!r}") from None
+        raise spec_error(source, key, f"expected {n} numbers, got {value!r}") from None
     if arr.shape != (n,):
-        raise _error(source, key, f"expected {n} numbers, got {value!r}")
+        raise spec_error(source, key, f"expected {n} numbers, got {value!r}")
     if not np.isfinite(arr).all():
-        raise _error(source, key, "contains NaN or Inf")
+        raise spec_error(source, key, "contains NaN or Inf")
     return arr
 
 
-def _number(value: Any, source: str, key: str, positive: bool = False) -> float:
+def number(value: Any, source: str, key: str, positive: bool = False) -> float:
+    """``value`` (a finite int or float, not a bool; > 0 with ``positive``) → float, else :func:`spec_error`
+    naming ``key``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _error(source, key, f"expected a number, got {value!r}")
+        raise spec_error(source, key, f"expected a number, got {value!r}")
     if not math.isfinite(value):
-        raise _error(source, key, "is NaN or Inf")
+        raise spec_error(source, key, "is NaN or Inf")
     if positive and value <= 0:
-        raise _error(source, key, f"must be > 0, got {value}")
+        raise spec_error(source, key, f"must be > 0, got {value}")
     return float(value)
 
 
@@ -85,9 +95,9 @@ class Selection:
             idx = self.params["indices"]
             if idx.size and (idx.min() < 0 or idx.max() >= len(points)):
                 bad = idx[(idx < 0) | (idx >= len(points))][0]
-                raise _error(source, self.key, f"index {bad} out of range for {len(points)} points")
+                raise spec_error(source, self.key, f"index {bad} out of range for {len(points)} points")
         if idx.size == 0:
-            raise _error(source, self.key, f"selects no points (of {len(points)})")
+            raise spec_error(source, self.key, f"selects no points (of {len(points)})")
         return idx
 
 
@@ -136,7 +146,7 @@ class EditSpec:
         A point selected by several handles follows the last one listed.
         """
         if not self.handles:
-            raise _error(self.source, "handles", "no handles given")
+            raise spec_error(self.source, "handles", "no handles given")
         points = np.asarray(points, dtype=np.float64)
         owner = np.full(len(points), -1)
         for h, handle in enumerate(self.handles):
@@ -156,13 +166,13 @@ class EditSpec:
     def path(self, key: str) -> Path:
         """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""
         if key not in self.extra:
-            raise _error(self.source, key, "missing")
+            raise spec_error(self.source, key, "missing")
         value = self.extra[key]
         if not isinstance(value, (str, os.PathLike)):
-            raise _error(self.source, key, f"expected a file path, got {value!r}")
+            raise spec_error(self.source, key, f"expected a file path, got {value!r}")
         resolved = (self.base_dir / value).resolve()
         if not resolved.is_file():
-            raise _error(self.source, key, f"file not found: {resolved}")
+            raise spec_error(self.source, key, f"file not found: {resolved}")
         return resolved
 
     def paths(self, key: str) -> list[Path]:
@@ -173,57 +183,57 @@ class EditSpec:
             if found is None:
                 return [self.path(key)]
             if not found:
-                raise _error(self.source, key, f"pattern {value!r} matches no file")
+                raise spec_error(self.source, key, f"pattern {value!r} matches no file")
             return found
         if isinstance(value, list) and value:
             out = []
             for i, item in enumerate(value):
                 resolved = (self.base_dir / str(item)).resolve()
                 if not resolved.is_file():
-                    raise _error(self.source, f"{key}[{i}]", f"file not found: {resolved}")
+                    raise spec_error(self.source, f"{key}[{i}]", f"file not found: {resolved}")
                 out.append(resolved)
             return out
-        raise _error(self.source, key, "expected a file, a glob pattern or a non-empty list of files")
+        raise spec_error(self.source, key, "expected a file, a glob pattern or a non-empty list of files")
 
 
 def _parse_selection(obj: Any, source: str, key: str) -> Selection:
-    _check_keys(obj, SELECT_KINDS, source, key)
+    check_keys(obj, SELECT_KINDS, source, key)
     if len(obj) != 1:
-        raise _error(source, key, f"expected exactly one of {list(SELECT_KINDS)}")
+        raise spec_error(source, key, f"expected exactly one of {list(SELECT_KINDS)}")
     kind, value = next(iter(obj.items()))
     key = f"{key}.{kind}"
     if kind == "box":
-        _check_keys(value, ("min", "max"), source, key, required=("min", "max"))
-        lo, hi = _vector(value["min"], source, f"{key}.min"), _vector(value["max"], source, f"{key}.max")
+        check_keys(value, ("min", "max"), source, key, required=("min", "max"))
+        lo, hi = vector(value["min"], source, f"{key}.min"), vector(value["max"], source, f"{key}.max")
         if np.any(lo > hi):
-            raise _error(source, key, "min exceeds max")
+            raise spec_error(source, key, "min exceeds max")
         return Selection(kind, {"min": lo, "max": hi}, key)
     if kind == "sphere":
-        _check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
-        center = _vector(value["center"], source, f"{key}.center")
-        return Selection(kind, {"center": center, "radius": _number(value["radius"], source, f"{key}.radius", True)}, key)
+        check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
+        center = vector(value["center"], source, f"{key}.center")
+        return Selection(kind, {"center": center, "radius": number(value["radius"], source, f"{key}.radius", True)}, key)
     if not isinstance(value, list) or not value or not all(isinstance(i, int) and not isinstance(i, bool) for i in value):
-        raise _error(source, key, "expected a non-empty list of integer vertex indices")
+        raise spec_error(source, key, "expected a non-empty list of integer vertex indices")
     return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)
 
 
 def _parse_transform(obj: Any, source: str, key: str) -> Transform:
-    _check_keys(obj, ("translate", "rotate", "scale"), source, key)
+    check_keys(obj, ("translate", "rotate", "scale"), source, key)
     if not obj:
-        raise _error(source, key, "empty transform")
-    translate = _vector(obj["translate"], source, f"{key}.translate") if "translate" in obj else np.zeros(3)
+        raise spec_error(source, key, "empty transform")
+    translate = vector(obj["translate"], source, f"{key}.translate") if "translate" in obj else np.zeros(3)
     rotvec, center = np.zeros(3), None
     if "rotate" in obj:
         rkey = f"{key}.rotate"
-        rot = _check_keys(obj["rotate"], ("axis", "degrees", "center"), source, rkey, required=("axis", "degrees"))
-        axis = _vector(rot["axis"], source, f"{rkey}.axis")
+        rot = check_keys(obj["rotate"], ("axis", "degrees", "center"), source, rkey, required=("axis", "degrees"))
+        axis = vector(rot["axis"], source, f"{rkey}.axis")
         norm = np.linalg.norm(axis)
         if norm == 0:
-            raise _error(source, f"{rkey}.axis", "is the zero vector")
-        rotvec = axis / norm * math.radians(_number(rot["degrees"], source, f"{rkey}.degrees"))
+            raise spec_error(source, f"{rkey}.axis", "is the zero vector")
+        rotvec = axis / norm * math.radians(number(rot["degrees"], source, f"{rkey}.degrees"))
         if "center" in rot:
-            center = _vector(rot["center"], source, f"{rkey}.center")
-    scale = _number(obj["scale"], source, f"{key}.scale", positive=True) if "scale" in obj else 1.0
+            center = vector(rot["center"], source, f"{rkey}.center")
+    scale = number(obj["scale"], source, f"{key}.scale", positive=True) if "scale" in obj else 1.0
     return Transform(translate, rotvec, center, scale)
 
 
@@ -232,23 +242,23 @@ def parse_edit_spec(
 ) -> EditSpec:
     """Validate a spec mapping. ``allowed_keys``: the top-level keys the deformer accepts (``frames`` always is)."""
     allowed = set(allowed_keys) | {"frames"}
-    _check_keys(data, allowed, source, "")
+    check_keys(data, allowed, source, "")
     frames = data.get("frames", 1)
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise _error(source, "frames", f"expected an integer >= 1, got {frames!r}")
+        raise spec_error(source, "frames", f"expected an integer >= 1, got {frames!r}")
     handles = []
     if "handles" in data:
         if not isinstance(data["handles"], list) or not data["handles"]:
-            raise _error(source, "handles", "expected a non-empty list")
+            raise spec_error(source, "handles", "expected a non-empty list")
         for i, item in enumerate(data["handles"]):
             key = f"handles[{i}]"
-            _check_keys(item, ("select", "fixed", "transform"), source, key, required=("select",))
+            check_keys(item, ("select", "fixed", "transform"), source, key, required=("select",))
             selection = _parse_selection(item["select"], source, f"{key}.select")
             fixed = item.get("fixed", False)
             if not isinstance(fixed, bool):
-                raise _error(source, f"{key}.fixed", f"expected true or false, got {fixed!r}")
+                raise spec_error(source, f"{key}.fixed", f"expected true or false, got {fixed!r}")
             if fixed == ("transform" in item):
-                raise _error(source, key, "needs exactly one of 'fixed': true or a 'transform'")
+                raise spec_error(source, key, "needs exactly one of 'fixed': true or a 'transform'")
             transform = None if fixed else _parse_transform(item["transform"], source, f"{key}.transform")
             handles.append(Handle(selection, transform))
     extra = {k: v for k, v in data.items() if k not in ("handles", "frames")}

@@ -1,9 +1,7 @@
 """Fast pure-torch encodings: a dense trilinear voxel grid and the real spherical-harmonics basis of directions.
 
-Why dense: on a CPU the cost of a grid field is dominated by gathering the 8 corner rows of every sample and by
-scattering their gradients back. A dense grid does exactly one gather of ``(M, 8, C)`` contiguous rows (the
-table is channels-last, so all channels of a corner are adjacent in memory) — measured faster on 2 CPU cores
-than ``grid_sample`` and than a multi-level hash grid, which needs one gather per level.
+The grid table is channels-last, so a lookup of ``M`` points is one gather of ``(M, 8, C)`` contiguous corner rows.
+Why dense rather than hashed or ``grid_sample``: docs/architecture.md, "fields/".
 """
 
 from __future__ import annotations

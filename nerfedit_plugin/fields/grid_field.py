@@ -14,7 +14,7 @@ from typing import Any, Callable, Literal
 
 import torch
 
-from nerfedit_plugin.fields.base import FieldConfig
+from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.training.trainer import TrainerConfig
 from nerfedit_plugin.fields.encoding import spherical_harmonics
 
@@ -94,6 +94,28 @@ def grid_schedule(field: Any) -> Callable[[int], bool]:
         return refine
 
     return callback
+
+
+class GridField(Field):
+    """What the dense-grid fields share beyond their config: view dependence from the colour decoder, the training
+    samples per ray as the render default, the occupancy-grid mask. Subclasses set ``self.color`` (a
+    :class:`ColorDecoder`) and ``self.occupancy`` (an ``OccupancyGrid`` or None)."""
+
+    @property
+    def view_dependent(self) -> bool:
+        return self.color.view_dependent
+
+    @property
+    def render_samples(self) -> int:
+        """The samples per ray of training (those the held-out PSNR was measured with)."""
+        return self.config.train.n_samples
+
+    def occupied(self, points: torch.Tensor) -> torch.Tensor:
+        """Occupancy-grid mask of canonical ``points`` (the box itself without an occupancy grid)."""
+        if self.occupancy is None:
+            lo, hi = self.scene_bbox
+            return ((points >= lo) & (points <= hi)).all(-1)
+        return self.occupancy.occupied(points)
 
 
 class ColorDecoder(torch.nn.Module):

@@ -18,6 +18,7 @@ import torch
 
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
@@ -81,41 +82,30 @@ class MeshField(Field):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def _raycasting_scene(self):
-        import open3d as o3d
-
         if self._scene is None:
             if len(self.faces) == 0:
                 raise NerfEditError("mesh field: no mesh loaded (use MeshField.from_mesh or load a checkpoint)")
-            scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(
-                o3d.core.Tensor(self.vertices.cpu().numpy().astype(np.float32)),
-                o3d.core.Tensor(self.faces.cpu().numpy().astype(np.uint32)),
-            )
-            self._scene = scene
+            self._scene = raycast.raycasting_scene(self.vertices.cpu().numpy(), self.faces.cpu().numpy())
         return self._scene
 
     @staticmethod
-    def _open3d_points(points: torch.Tensor):
-        import open3d as o3d
-
-        return o3d.core.Tensor(points.detach().reshape(-1, 3).cpu().numpy().astype(np.float32))
+    def _numpy_points(points: torch.Tensor) -> np.ndarray:
+        return points.detach().reshape(-1, 3).cpu().numpy()
 
     def occupied(self, points: torch.Tensor) -> torch.Tensor:
         """Exact inside test ``(M,)`` (Open3D ray-parity occupancy; the mesh must be watertight)."""
         if len(points) == 0:
             return torch.zeros(0, dtype=torch.bool, device=points.device)
-        occupancy = self._raycasting_scene().compute_occupancy(self._open3d_points(points)).numpy()
-        return torch.from_numpy(occupancy > 0.5).to(points.device)
+        occupancy = raycast.occupancy(self._raycasting_scene(), self._numpy_points(points))
+        return torch.from_numpy(occupancy).to(points.device)
 
     def surface_colors(self, points: torch.Tensor) -> torch.Tensor:
         """``(M,3)``: barycentric vertex colour of the closest surface point of each point."""
         if len(points) == 0:
             return torch.zeros(0, 3, dtype=torch.float32, device=points.device)
-        closest = self._raycasting_scene().compute_closest_points(self._open3d_points(points))
-        tri = self.faces.cpu().numpy()[closest["primitive_ids"].numpy().astype(np.int64)]
-        uv = closest["primitive_uvs"].numpy()
+        triangle, bary = raycast.closest_points(self._raycasting_scene(), self._numpy_points(points), np.float32)
+        tri = self.faces.cpu().numpy()[triangle]
         colors = self.vertex_colors.cpu().numpy()
-        bary = np.concatenate([1.0 - uv.sum(1, keepdims=True), uv], axis=1)
         rgb = np.einsum("mk,mkc->mc", bary, colors[tri])
         return torch.from_numpy(rgb.astype(np.float32)).to(points.device)
 

@@ -1,17 +1,11 @@
-"""The ``nerf`` field backend: a dense voxel grid of density and appearance features, a tiny view-dependent MLP
-colour decoder, and an occupancy grid for skipping empty space — built to train in minutes on a CPU.
+"""The ``nerf`` field backend: a dense voxel grid of density and appearance features, a colour decoder (optionally a
+tiny view-dependent MLP), and an occupancy grid for skipping empty space — built to train in minutes on a CPU.
 
-Model: one channels-last :class:`~nerfedit_plugin.fields.encoding.DenseGrid` with ``1 + features`` channels over
-``scene_bbox``. At a point ``x`` with view direction ``d``:
-``σ(x) = softplus(g₀(x) + shift) / h`` (0 outside the box; ``h`` = mean cell size of the final grid, so ``g₀``
-is an optical thickness per cell and Adam steps of a fixed size move opacity at any scene scale),
-``rgb = sigmoid(g₁..₃(x) + MLP([g₁..(x), SH(d)]))`` (:class:`~nerfedit_plugin.fields.grid_field.ColorDecoder`)
-— a view-dependent residual on a direct colour, its last layer zero at start, so training begins as a plain RGB
-grid (an MLP-only decoder learnt far slower here: ~20 dB vs 23.5 dB after 30 s); ``decoder="rgb"`` (the default)
-drops the MLP: the plain density+RGB grid, also used as the calibration floor.
-Because trilinear interpolation is multilinear and softplus is increasing, the largest density inside any box of
-grid cells is attained at one of its grid vertices, so the occupancy grid (aligned with the density grid) is
-updated from *exact* per-cell maxima — it can never mark space with density above the threshold as empty.
+One channels-last :class:`~nerfedit_plugin.fields.encoding.DenseGrid` with ``1 + features`` channels ``g`` over
+``scene_bbox``: ``σ(x) = softplus(g₀(x) + shift) / h`` (0 outside the box; ``h`` the final grid's mean cell size),
+``rgb = sigmoid(g₁..₃(x) [+ MLP([g₁..(x), SH(d)])])`` (:class:`~nerfedit_plugin.fields.grid_field.ColorDecoder`;
+``decoder="rgb"``, the default, has no MLP). The occupancy grid is updated from exact per-cell maxima of σ, so it
+never marks space above the threshold empty. Why these choices: docs/architecture.md, "fields/".
 """
 
 from __future__ import annotations
@@ -23,18 +17,19 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from nerfedit_plugin.fields.base import Field
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.training.trainer import TrainerConfig, train
 from nerfedit_plugin.fields.encoding import DenseGrid
-from nerfedit_plugin.fields.grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
+from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
 from nerfedit_plugin.fields.level_set import extract_level_set
 from nerfedit_plugin.fields.occupancy import OccupancyGrid
 
 
 @dataclasses.dataclass
 class NerfConfig(GridFieldConfig):
-    """Dense-grid NeRF. The defaults are the CPU preset for the 100×100 built-in scene (target: test PSNR ≥ 30 dB
+    """Dense-grid NeRF: a density field with a view-dependent colour, trained on posed images.
+
+    The defaults are the CPU preset for the 100×100 built-in scene (target: test PSNR ≥ 30 dB
     within 5 min on 2 cores; ``bench/bench_train.py --clock cpu`` measured 30.5 dB at 90 s and 34.9 dB after 300 s,
     660 steps; the plain 96³ floor 25.4 dB); :meth:`tiny` is a seconds-scale preset for tests. The grid starts at
     64³ for 300 steps (one cell ≈ one pixel footprint at 100×100: every vertex gets gradients often, test PSNR
@@ -57,7 +52,7 @@ class NerfConfig(GridFieldConfig):
         return super().tiny(seconds, **{"occupancy_warmup": 48, **overrides})
 
 
-class NerfField(Field):
+class NerfField(GridField):
     """Density field on a dense grid with a tiny view-dependent colour MLP (see the module docstring)."""
 
     kind = "density"
@@ -76,28 +71,12 @@ class NerfField(Field):
         )
 
     # ---- the Field contract ------------------------------------------------------------------------------------
-    @property
-    def view_dependent(self) -> bool:
-        return self.color.view_dependent
-
-    @property
-    def render_samples(self) -> int:
-        """The samples per ray of training (those the held-out PSNR was measured with)."""
-        return self.config.train.n_samples
-
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         values = self.grid(points)
         lo, hi = self.scene_bbox
         inside = ((points >= lo) & (points <= hi)).all(-1)
         density = F.softplus(values[:, 0] + self.shift) * (inside / self.cell)
         return density, self.color(values[:, 1:], directions)
-
-    def occupied(self, points: torch.Tensor) -> torch.Tensor:
-        """Occupancy-grid mask of canonical ``points`` (the box itself without an occupancy grid)."""
-        if self.occupancy is None:
-            lo, hi = self.scene_bbox
-            return ((points >= lo) & (points <= hi)).all(-1)
-        return self.occupancy.occupied(points)
 
     @torch.no_grad()
     def cell_max_density(self) -> torch.Tensor:

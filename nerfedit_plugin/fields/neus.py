@@ -2,22 +2,13 @@
 unbiased opacity (in the shared renderer), a learned sharpness, an eikonal loss and an occupancy band around the
 surface — built to train in minutes on a CPU.
 
-Model: one channels-last :class:`~nerfedit_plugin.fields.encoding.DenseGrid` with ``1 + features`` channels over
-``scene_bbox``, refined coarse to fine. At a point ``x`` with view direction ``d``: ``f(x) = h · g₀(x)`` (``h`` =
-mean cell size of the final grid, so ``g₀`` is a distance in cells and Adam steps of a fixed size move the surface
-by a fixed fraction of a cell at any scene scale), initialised to the sphere ``f(x) = |x − c| − r`` (``c`` the box
-centre) and, when training on images with alpha, to the signed distance of their visual hull (``init_hull``); the
-colour is :class:`~nerfedit_plugin.fields.grid_field.ColorDecoder` of ``g₁..(x)`` and ``d``. The NeuS sharpness is
-``s = exp(log_s) / h`` (``log_s`` learnt).
-
-Eikonal loss: ``mean (|∇f| − 1)²`` at random points (half uniform in the box, half in occupied cells), with the
-grid's analytic gradient (:meth:`DenseGrid.value_and_gradient`), which :meth:`NeusField.query` also hands to the
-renderer's NeuS cosine through a first-order term, so that no double backward through the grid lookup is needed.
-
-Occupancy: NeuS opacity is negligible where ``|f| ≫ 1/s`` (outside: both section CDFs ≈ 1; inside: rays arrive
-with no transmittance left), so only cells that hold a point with ``|f| ≤ occupancy_band / s`` are sampled. Over a
-box of grid cells, ``f`` ranges exactly over ``[min, max]`` of its vertex values (trilinear interpolation is a convex
-combination of them and the box is connected), so ``min |f| = dist(0, [min, max])`` per cell is exact.
+One channels-last :class:`~nerfedit_plugin.fields.encoding.DenseGrid` with ``1 + features`` channels ``g`` over
+``scene_bbox``, refined coarse to fine: ``f(x) = h · g₀(x)`` (``h`` the final grid's mean cell size; initialised to a
+sphere, or to the signed distance of the images' visual hull with ``init_hull``), colour
+:class:`~nerfedit_plugin.fields.grid_field.ColorDecoder` of ``g₁..(x)`` and ``d``, sharpness ``s = exp(log_s) / h``.
+Eikonal loss ``mean (|∇f| − 1)²`` with the grid's analytic gradient (half the points uniform in the box, half in
+occupied cells); only cells holding a point with ``|f| ≤ occupancy_band / s`` are sampled (exact per cell).
+Why these choices: docs/architecture.md, "fields/".
 """
 
 from __future__ import annotations
@@ -30,18 +21,19 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from nerfedit_plugin.fields.base import Field
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.training.trainer import TrainerConfig, train
 from nerfedit_plugin.fields.encoding import DenseGrid
-from nerfedit_plugin.fields.grid_field import ColorDecoder, GridFieldConfig, grid_schedule, start_resolution
+from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
 from nerfedit_plugin.fields.level_set import extract_level_set
 from nerfedit_plugin.fields.occupancy import OccupancyGrid
 
 
 @dataclasses.dataclass
 class NeusConfig(GridFieldConfig):
-    """Dense-grid NeuS. The defaults are the CPU preset for the 100×100 built-in scene (bench/bench_train.py
+    """Dense-grid NeuS: a signed distance field (its zero level set is the surface), trained on posed images.
+
+    The defaults are the CPU preset for the 100×100 built-in scene (bench/bench_train.py
     --field neus); :meth:`tiny` is a seconds-scale preset for tests."""
 
     _target: type = dataclasses.field(default_factory=lambda: NeusField)
@@ -78,7 +70,7 @@ class NeusConfig(GridFieldConfig):
                                         **overrides})
 
 
-class NeusField(Field):
+class NeusField(GridField):
     """Signed distance field on a dense grid with NeuS sharpness (see the module docstring)."""
 
     kind = "sdf"
@@ -101,15 +93,6 @@ class NeusField(Field):
         self.occupancy = OccupancyGrid(self.scene_bbox, occupancy) if occupancy else None
 
     # ---- the Field contract ------------------------------------------------------------------------------------
-    @property
-    def view_dependent(self) -> bool:
-        return self.color.view_dependent
-
-    @property
-    def render_samples(self) -> int:
-        """The samples per ray of training (those the held-out PSNR was measured with)."""
-        return self.config.train.n_samples
-
     def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """SDF and colour; when ``points`` require grad, ``f`` carries the first-order term ``(x − x̄)·∇f(x̄)``
         (``x̄`` = detached ``x``; zero in value) so that autograd's ``∂f/∂x`` is the analytic gradient of the grid,
@@ -122,13 +105,6 @@ class NeusField(Field):
 
     def sharpness(self) -> torch.Tensor:
         return self.log_sharpness.exp() / self.cell
-
-    def occupied(self, points: torch.Tensor) -> torch.Tensor:
-        """Occupancy-grid mask of canonical ``points`` (the box itself without an occupancy grid)."""
-        if self.occupancy is None:
-            lo, hi = self.scene_bbox
-            return ((points >= lo) & (points <= hi)).all(-1)
-        return self.occupancy.occupied(points)
 
     # ---- training ----------------------------------------------------------------------------------------------
     def eikonal_loss(self, points: torch.Tensor) -> torch.Tensor:

@@ -1,27 +1,11 @@
-"""As-rigid-as-possible deformation (Sorkine & Alexa 2007) of triangle and tetrahedral meshes.
+"""As-rigid-as-possible deformation (Sorkine & Alexa, SGP 2007) of triangle and tetrahedral meshes.
 
-Energy of deformed positions X (rest P), with one rotation R_g per *rotation group* g:
-
-    E(X) = min_R Σ_g Σ_{(i,j)∈g} w_ij ‖(x_i − x_j) − R_g (p_i − p_j)‖²   (+ w_c ‖C X − T‖²  soft constraints)
-
-``w_ij = −vol(e) ∇φ_i·∇φ_j`` is the cotangent weight of edge ij in element e (½ cot θ for triangles,
-⅙ l cot θ for tets; negative on obtuse slivers). Each element's weighted edge sum equals vol·‖∇u‖² ≥ 0, so every
-group's term stays non-negative even with negative weights. Rotation groups (``energy``):
-
-- ``"spokes_and_rims"`` (triangle default, as libigl): one rotation per vertex over *all* edges of its incident
-  elements;
-- ``"spokes"``: one rotation per vertex over its incident edges;
-- ``"elements"`` (tet default): one rotation per element over its edges.
-
-Local step: ``S_g = Σ w (p_i − p_j)(x_i − x_j)ᵀ`` for every g in one sparse product ``S = Kᵀ X``; ``R_g`` maximises
-``tr(R_g S_g)`` (polar factor with the determinant fixed). Global step: ``A X = K R + w_c Cᵀ T`` with
-``A = m·L + w_c CᵀC`` (L the cotangent Laplacian, ``m`` = how many groups hold each element edge) restricted to the
-free vertices and factored once; fixed vertices are eliminated exactly. Both steps minimise E exactly, so the
-energy never increases. Iterations are accelerated with Anderson acceleration on the free positions (Peng et al.
-2018) guarded by the energy: an extrapolated iterate whose energy is not below the previous one is replaced by
-the plain local/global iterate. A solve stops when the relative energy decrease per iteration (averaged over a few
-iterations) falls below ``tolerance``. On a 28k-vertex bunny edit this reaches libigl's converged energy in about
-an eighth of libigl's time (``bench/bench_arap.py``).
+:class:`ArapSolver` minimises, over deformed positions ``X (N,3)`` (rest ``P``), with cotangent weights ``w_ij`` and
+one rotation ``R_g`` per rotation group ``g`` (``energy``: ``spokes_and_rims``, ``spokes`` or ``elements``),
+``E(X) = min_R Σ_g Σ_{(i,j)∈g} w_ij ‖(x_i − x_j) − R_g (p_i − p_j)‖²  (+ w_c ‖C X − T‖², soft constraints C (m,N))``.
+Fixed vertices are eliminated exactly; local/global iterations share one prefactored sparse Cholesky and are
+Anderson-accelerated under an energy guard (the energy never increases). The derivation and the solver's choices:
+docs/method.md, "Surface editing: ARAP".
 """
 
 from __future__ import annotations
@@ -51,8 +35,9 @@ CONVERGENCE_WINDOW = 3
 
 
 class ArapResult(NamedTuple):
-    """``vertices (N,3)``; ``iterations`` done; ``energies[k]`` = E (ARAP plus constraint penalty) after k iterations
-    (``energies[0]`` at the start; non-increasing); ``converged`` = the relative decrease fell below the tolerance."""
+    """``vertices (N,3) float64``; ``iterations`` done; ``energies[k]`` = E (ARAP plus constraint penalty) after k
+    iterations (``energies[0]`` at the start; non-increasing); ``converged`` = the relative decrease fell below the
+    tolerance."""
 
     vertices: np.ndarray
     iterations: int
@@ -61,8 +46,8 @@ class ArapResult(NamedTuple):
 
 
 def cotangent_weights(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """``(F, E)`` weights ``w_ij = −vol ∇φ_i·∇φ_j`` of the element edges :data:`ELEMENT_EDGES` (0 on degenerate
-    elements).
+    """vertices (N,3) float64, elements (F,3) triangles or (F,4) tets int64 → ``(F,E)`` float64 weights
+    ``w_ij = −vol ∇φ_i·∇φ_j`` of the element edges :data:`ELEMENT_EDGES` (E = 3 or 6; 0 on degenerate elements).
 
     Triangles: ½ cot of the opposite angle. Tets: ⅙ l cot θ (length and dihedral angle of the opposite edge).
     ``L = Σ w (e_i − e_j)(e_i − e_j)ᵀ`` assembled from them equals ``−igl.cotmatrix``.
@@ -87,8 +72,8 @@ def cotangent_weights(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:
 
 
 def fit_rotations(stacked: np.ndarray) -> np.ndarray:
-    """Rotations maximising ``tr(R_g S_g)`` for ``G`` covariances stacked ``(3G, 3)`` (row ``a·G + g`` = row a of
-    ``S_g``); returns the ``R_gᵀ`` stacked the same way.
+    """stacked (3G,3) float64 → (3G,3) float64: the rotations maximising ``tr(R_g S_g)`` for ``G`` covariances
+    stacked ``(3G, 3)`` (row ``a·G + g`` = row a of ``S_g``), returned as the ``R_gᵀ`` stacked the same way.
 
     Horn's quaternion method, vectorised: R_g is the unit quaternion of the largest eigenvalue λ of the traceless
     symmetric 4×4 matrix N(S_g) (always a proper rotation, rank-deficient S included). λ is the largest root of
@@ -165,7 +150,8 @@ def _minors_4x4(m00, m11, m22, m33, n01, n02, n03, n12, n13, n23):
 
 
 def fit_rotations_numpy(stacked: np.ndarray) -> np.ndarray:
-    """:func:`fit_rotations` by batched SVD: ``S = UΣVᵀ``, ``R = V diag(1, 1, det(VUᵀ)) Uᵀ``."""
+    """:func:`fit_rotations` by batched SVD (same stacked ``(3G,3)`` float64 in and out): ``S = UΣVᵀ``,
+    ``R = V diag(1, 1, det(VUᵀ)) Uᵀ``."""
     g = len(stacked) // 3
     u, _, vt = np.linalg.svd(stacked.reshape(3, g, 3).transpose(1, 0, 2))
     v = vt.transpose(0, 2, 1).copy()
@@ -240,6 +226,9 @@ class _Anderson:
 class ArapSolver:
     """ARAP (Sorkine & Alexa 2007) on a triangle or tet mesh: cotangent weights, local polar step, global step
     with a prefactored sparse Cholesky; handle vertices eliminated exactly; optional soft linear constraints.
+
+    ``vertices (N,3) float64`` (rest), ``elements (F,3)`` triangles or ``(K,4)`` tets int64, ``fixed (H,) int64``
+    handle vertex indices, ``constraints`` a sparse ``C (m,N)``.
 
     ``constraints`` ``C (m, N)`` and ``constraint_weight`` w add ``w_c ‖C X − T‖²`` with the dimensionless ``w``
     scaled to ``w_c = w · mean(diag(m·L))`` (the average stiffness of a vertex in the ARAP system), so ``w = 1``
@@ -381,8 +370,8 @@ class ArapSolver:
 
     # ---- public API ------------------------------------------------------------------------------
     def energy(self, positions: np.ndarray, constraint_targets: np.ndarray | None = None) -> float:
-        """``E(X)`` with the optimal rotations, plus ``w_c ‖C X − T‖²`` when there are constraints (``T`` defaults to
-        ``C·rest``)."""
+        """positions (N,3) float64, constraint_targets (m,3) float64 or None → float: ``E(X)`` with the optimal
+        rotations, plus ``w_c ‖C X − T‖²`` when there are constraints (``T`` defaults to ``C·rest``)."""
         x = np.asarray(positions, dtype=np.float64) - self.origin
         return self._local(x, self._centred_targets(constraint_targets))[1]
 
@@ -396,12 +385,13 @@ class ArapSolver:
         tolerance: float = 1e-6,
         anderson: int = ANDERSON_DEPTH,
     ) -> ArapResult:
-        """Minimise E with the fixed vertices at ``fixed_positions`` (default: rest) and constraint targets
-        ``constraint_targets`` (default: ``C·rest``), starting from ``initial`` (default: rest), whose fixed rows are
-        replaced. Stops when the relative energy decrease per iteration, averaged over the last
-        :data:`CONVERGENCE_WINDOW` iterations (accelerated steps progress unevenly), is ≤ ``tolerance``, or after
-        ``max_iterations``. ``anderson`` is the acceleration history length (0: plain local/global iterations, whose
-        iterates are libigl's ``arap_solve`` iterates)."""
+        """Minimise E with the fixed vertices at ``fixed_positions (H,3)`` (default: rest) and constraint targets
+        ``constraint_targets (m,3)`` (default: ``C·rest``), starting from ``initial (N,3)`` (default: rest), whose
+        fixed rows are replaced; all float64 → :class:`ArapResult` (``vertices (N,3) float64``). Stops when the
+        relative energy decrease per iteration, averaged over the last :data:`CONVERGENCE_WINDOW` iterations
+        (accelerated steps progress unevenly), is ≤ ``tolerance``, or after ``max_iterations``. ``anderson`` is the
+        acceleration history length (0: plain local/global iterations, whose iterates are libigl's ``arap_solve``
+        iterates)."""
         x = self.rest.copy() if initial is None else np.array(initial, dtype=np.float64) - self.origin
         if x.shape != self.rest.shape or not np.isfinite(x).all():
             raise NerfEditError(f"ARAP: initial must be finite {self.rest.shape}, got {x.shape}")

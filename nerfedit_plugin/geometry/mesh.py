@@ -15,7 +15,8 @@ from nerfedit_plugin.io.samples import resolve_mesh_path
 
 @dataclass
 class SurfaceMesh:
-    """A triangle mesh: ``vertices (V,3) float64``, ``faces (F,3) int64``, optional ``vertex_colors (V,3)`` in [0,1]."""
+    """A triangle mesh: ``vertices (V,3) float64``, ``faces (F,3) int64``, optional ``vertex_colors (V,3)`` float64
+    in [0,1] (inputs are cast; colours above 1 are read as 0–255; a 4th colour channel is dropped)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -40,18 +41,21 @@ class SurfaceMesh:
 
     @property
     def n_vertices(self) -> int:
+        """V, the number of vertices."""
         return len(self.vertices)
 
     @property
     def bbox_diagonal(self) -> float:
+        """Length of the diagonal of the vertices' axis-aligned bounding box (float)."""
         return float(np.linalg.norm(self.vertices.max(0) - self.vertices.min(0)))
 
     def with_vertices(self, vertices: np.ndarray) -> "SurfaceMesh":
-        """Same connectivity and colours, new positions."""
+        """vertices (V,3) float → a SurfaceMesh with the same connectivity and colours, new positions."""
         return SurfaceMesh(vertices, self.faces, self.vertex_colors)
 
     def largest_component(self) -> "SurfaceMesh":
-        """The connected part (through shared vertices) with the most faces; unused vertices dropped, order kept."""
+        """→ the connected part (through shared vertices) with the most faces, as a SurfaceMesh of ``V' ≤ V``
+        vertices; unused vertices dropped, the order of the kept ones unchanged."""
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
 
@@ -68,6 +72,7 @@ class SurfaceMesh:
 
     # ---- conversions -------------------------------------------------------------------------
     def to_trimesh(self):
+        """→ ``trimesh.Trimesh`` (``process=False``: vertex order and duplicates kept; colours as vertex colours)."""
         import trimesh
 
         return trimesh.Trimesh(self.vertices, self.faces, vertex_colors=self.vertex_colors, process=False)
@@ -81,6 +86,7 @@ class SurfaceMesh:
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces), colors)
 
     def to_open3d(self):
+        """→ ``open3d.geometry.TriangleMesh`` (float64 vertices, int32 triangles, vertex colours when present)."""
         import open3d as o3d
 
         mesh = o3d.geometry.TriangleMesh(

@@ -1,14 +1,16 @@
-"""A run folder: one trained field and what it was trained on (DESIGN.md §4).
+"""A run folder: one trained field and what it was trained on (docs/architecture.md, "Run folder").
 
 ``RUN_DIR/config.yml``  ``{"field": backend name, "data": the dataset or mesh, relative to RUN_DIR (a run and
                         its data moved together stay valid), "field_config": the backend's full config}``
 ``RUN_DIR/field.pt``    the checkpoint (:mod:`nerfedit_plugin.io.checkpoint`)
 ``RUN_DIR/log.json``    training log (loss/PSNR per step, held-out PSNR-vs-time), when the backend trains
-``RUN_DIR/mesh.ply``    written by :func:`extract_mesh` (``nerfedit extract``)
+``RUN_DIR/mesh.ply``    the surface mesh: written by :func:`extract_mesh` (``nerfedit extract``); a mesh field's
+                        run has it at once (the field's own mesh, in its vertex order)
 
-A run is written atomically (never half a run on disk); ``mesh.ply`` is added atomically afterwards. Backends whose
-``Field.data == "mesh"`` are built from a mesh file with ``from_mesh``; the others ``fit`` an image dataset (the
-``test`` split, else ``val``, is used for the held-out PSNR curve).
+A run is written atomically (never half a run on disk); an extracted ``mesh.ply`` is added atomically afterwards.
+Backends whose ``Field.data == "mesh"`` are built from a mesh file with ``from_mesh`` and their mesh is written in the
+same atomic stage; the others ``fit`` an image dataset (the ``test`` split, else ``val``, is used for the held-out
+PSNR curve).
 """
 
 from __future__ import annotations
@@ -20,15 +22,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import yaml
 
-from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
-from nerfedit_plugin.io.checkpoint import load_field, save_field
-from nerfedit_plugin.config import to_plain, write_config
+from nerfedit_plugin.config import read_config, to_plain, write_config
 from nerfedit_plugin.data.datasets import Dataset, load_dataset, read_transforms, transforms_file
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
+from nerfedit_plugin.io.checkpoint import load_field, save_field
 from nerfedit_plugin.registry import FIELDS, Registry, discover
 
 CONFIG, CHECKPOINT, LOG, MESH = "config.yml", "field.pt", "log.json", "mesh.ply"
@@ -56,9 +57,17 @@ class Run:
         """The trained field, on ``device`` (default: CUDA when present)."""
         return load_field(self.path / CHECKPOINT, registry, backend=self.backend, device=device or default_device())
 
+    @property
+    def from_mesh(self) -> bool:
+        """The run's field is built from a mesh (``Field.data == "mesh"``): the field is the mesh."""
+        return _builds_from_mesh(self.backend)
+
     def mesh(self) -> SurfaceMesh:
-        """The extracted mesh; an error naming the run when ``nerfedit extract`` has not been run."""
+        """The run's mesh: ``mesh.ply``, or the field's own mesh for a mesh field's run written before runs held it;
+        an error naming the run when ``nerfedit extract`` has not been run."""
         if not self.mesh_path.is_file():
+            if self.from_mesh:
+                return self.field("cpu").extract_mesh()
             raise NerfEditError(f"{self.path}: no {MESH} in the run (run `nerfedit extract --run {self.path}` first)")
         return SurfaceMesh.load(self.mesh_path)
 
@@ -80,13 +89,14 @@ def open_run(path: str | os.PathLike) -> Run:
     file = path / CONFIG
     if not file.is_file():
         raise NerfEditError(f"{path}: not a run folder (no {CONFIG}; make one with `nerfedit train`)")
-    try:
-        config = yaml.safe_load(file.read_text())
-    except yaml.YAMLError as exc:
-        raise NerfEditError(f"{file}: not valid YAML ({exc})") from exc
-    if not isinstance(config, dict) or not isinstance(config.get("field"), str) or "data" not in config:
+    config = read_config(file, "a run's config")
+    if not isinstance(config.get("field"), str) or "data" not in config:
         raise NerfEditError(f"{file}: expected the keys 'field' and 'data' of a run written by `nerfedit train`")
     return Run(path, config["field"], (path / config["data"]).resolve(), config)
+
+
+def _builds_from_mesh(backend: str) -> bool:
+    return getattr(discover(FIELDS).config_class(FIELDS, backend)()._target, "data", None) == "mesh"
 
 
 def _is_mesh_file(data: Path) -> bool:
@@ -116,8 +126,8 @@ def train_run(
     record: Any = None,
 ) -> tuple[Run, dict]:
     """Build (``data`` = mesh file, mesh backends) or train (``data`` = dataset folder) the field ``backend`` with
-    ``config`` and write the run folder ``out`` atomically. ``record`` (default: the config) goes to config.yml
-    under ``command``. Returns the run and the training log."""
+    ``config`` and write the run folder ``out`` atomically, with ``mesh.ply`` for mesh backends. ``record`` (the
+    command line's args) goes to config.yml under ``command``. Returns the run and the training log."""
     registry = discover() if registry is None else registry
     if registry.config_class(FIELDS, backend) is not type(config):
         raise NerfEditError(f"field: the config {type(config).__name__} is not the {backend!r} backend's")
@@ -144,15 +154,20 @@ def train_run(
         write_config(stage / CONFIG, plain)
         if log:
             (stage / LOG).write_text(json.dumps(to_plain(log)))
+        if target.data == "mesh":
+            field.extract_mesh().save(stage / MESH)
     return open_run(out), log
 
 
 def extract_mesh(run: Run, resolution: int = 256, level: float | None = None, *, largest_component: bool = True,
                  overwrite: bool = False, device: torch.device | str | None = None) -> Path:
     """Extract the run's mesh (marching cubes for trained fields; the mesh itself for mesh fields) into
-    ``RUN_DIR/mesh.ply``, atomically; an existing mesh is replaced only with ``overwrite``. ``largest_component``
+    ``RUN_DIR/mesh.ply``, atomically; an existing mesh is replaced only with ``overwrite``, except that a mesh
+    field's run, which has its mesh from :func:`train_run`, is left as it is (nothing to extract). ``largest_component``
     drops floaters of trained fields (a mesh field's mesh is always kept whole, in its vertex order)."""
     if run.mesh_path.exists() and not overwrite:
+        if run.from_mesh:
+            return run.mesh_path
         raise NerfEditError(f"{run.mesh_path}: exists (pass --overwrite to extract again)")
     field = run.field(device)
     try:

@@ -1,40 +1,12 @@
 """The one renderer of every field backend, with optional ray bending through a DeformationField.
 
-Sampling. Each ray (unit direction) is clipped to an axis-aligned box: the field's ``scene_bbox`` united with the
-bounding box of the deformed tets the frame moves (so parts moved out of the scene box are still sampled; an
-identity edit keeps the scene box), unless per-ray ``bounds = (near, far)`` are given. ``[near, far]`` is cut into
-``n_samples`` bins of equal width ``δ``; a sample sits at each bin centre, or uniformly at random in its bin when
-``stratified`` (training).
-
-Bending (DESIGN.md §3). With a DeformationField, a sample ``x`` (deformed space) maps to ``x_c = to_canonical(x)``:
-inside the deformed proxy T' it is mapped, in the space the object left (inside T, outside T') it is *empty* (zero
-opacity, never queried), elsewhere it is unchanged (background and other objects untouched). The view direction
-follows the bent ray: ``d_c = normalize(J d)`` (for view-dependent fields). The field's
-:meth:`~nerfedit_plugin.fields.base.Field.occupied` grid then drops samples at their canonical position; only the kept
-samples are queried, in one packed batch. Bending costs one
-:meth:`~nerfedit_plugin.bending.deformation_field.DeformationField.bend` per batch (in place; only samples near the proxies
-are located) and the per-tet Jacobians of the kept samples, only for fields that need them (sdf gradients,
-``Field.view_dependent`` colours; other fields get the unrotated direction, which they ignore).
-
-Opacity of a sample:
-
-- density fields: ``α = 1 − exp(−σ δ)``;
-- sdf fields (NeuS, unbiased): the cosine ``c = d · ∇ₓf`` in deformed space, ``∇ₓf = Jᵀ ∇f(x_c)`` (autograd),
-  annealed to ``c' = −(relu(−c/2 + ½)(1 − a) + relu(−c) a)`` (``a`` = ``cos_anneal``), section values
-  ``f∓ = f ∓ c' δ/2`` and ``α = clamp((Φ_s(f−) − Φ_s(f+)) / Φ_s(f−), 0, 1)`` with the logistic CDF ``Φ_s`` of
-  sharpness ``s``.
-
-Compositing: ``w_i = α_i Π_{j<i} (1 − α_j)``, ``rgb = Σ w c + (1 − Σ w)·background``, ``opacity = Σ w``,
-``depth = Σ w t / Σ w`` (0 where nothing is hit). Without autograd, rays march front to back and stop once their
-transmittance is below ``early_stop`` (nothing behind an opaque surface is bent or queried).
-
-Opaque fields (``Field.opaque``, e.g. the ``mesh`` field, whose ``occupied`` is the exact inside test): the density
-quadrature would stop every ray at its first inside sample ``t_i``, up to ``δ`` behind the surface. The renderer
-finds ``t_i`` marching front to back (``OPAQUE_SEGMENT`` samples per step, rays drop out once they hit, so nothing
-behind a surface is bent or tested), then refines the crossing on ``[t_{i−1}, t_i]`` (``[near, t_0]`` for the first
-sample): each of ``refine_rounds`` rounds evaluates the bent inside test at ``REFINE_SPLIT − 1`` points of the
-bracket (one batch) and keeps the part ending at the first inside one. The colour is queried once at the final
-inside point: ``rgb = c(t*)``, ``opacity = 1``, ``depth = t*``. This makes the mesh field an exact oracle of ray bending (no sampling error along the ray).
+Rays ``(R,3)`` are clipped to :func:`sampling_box` (``scene_bbox`` ∪ the box of the tets the frame moves) and sampled
+at ``n_samples`` bin centres of width ``δ`` (stratified when training). With a deformation, samples map to
+``x_c``, vacated ones are empty, view directions become ``normalize(J d)`` and SDF gradients ``∇ₓf = Jᵀ ∇f(x_c)``.
+Opacity ``α = 1 − exp(−σ δ)`` (density) or NeuS's unbiased ``α = clamp((Φ_s(f−) − Φ_s(f+)) / Φ_s(f−), 0, 1)``,
+``f∓ = f ∓ c' δ/2`` with ``c'`` the annealed cosine of ``c = d · ∇ₓf`` (sdf); ``w_i = α_i Π_{j<i} (1 − α_j)``,
+``rgb = Σ w c + (1 − Σ w)·background``, ``depth = Σ w t / Σ w``. Opaque fields (``Field.opaque``) are shaded once at
+each ray's refined first inside point ``t*`` instead. Full semantics: docs/architecture.md, "Rendering".
 """
 
 from __future__ import annotations
@@ -96,9 +68,9 @@ class _Kept(NamedTuple):
 
 
 def sampling_box(field: Field, deformation=None, frame: int = 0) -> torch.Tensor:
-    """The box ``(2,3)`` rays are clipped to: ``scene_bbox`` ∪ the box of the tets that ``frame`` moves
-    (:meth:`DeformationField.moved_bounds`; elsewhere the scene is where it was, so an identity edit samples every
-    ray exactly as the unedited render does)."""
+    """field, deformation (or None), frame → ``(2,3)`` box (``scene_bbox``'s dtype and device) rays are clipped to:
+    ``scene_bbox`` ∪ the box of the tets that ``frame`` moves (:meth:`DeformationField.moved_bounds`; elsewhere the
+    scene is where it was, so an identity edit samples every ray exactly as the unedited render does)."""
     box = field.scene_bbox
     bounds = None if deformation is None else deformation.moved_bounds(frame)
     if bounds is None:
@@ -108,7 +80,8 @@ def sampling_box(field: Field, deformation=None, frame: int = 0) -> torch.Tensor
 
 
 def ray_box(origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Slab test: ``(near, far)`` of each ray inside ``box``, ``near ≥ 0``; ``far = near`` for rays that miss."""
+    """Slab test. origins (R,3), unit directions (R,3), box (2,3) (lo, hi) → ``(near (R,), far (R,))`` in the
+    origins' dtype, the part of each ray inside ``box``; ``near ≥ 0``; ``far = near`` for rays that miss."""
     safe = torch.where(directions.abs() < 1e-12, torch.full_like(directions, 1e-12), directions)
     t0, t1 = (box[0] - origins) / safe, (box[1] - origins) / safe
     near = torch.minimum(t0, t1).amax(-1).clamp_min(0.0)
@@ -164,7 +137,8 @@ def render_rays(
     stratified: bool = False,
     bounds: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> RenderOutput:
-    """Render rays ``origins, directions (R,3)`` (unit directions, deformed/world space) — see the module docstring.
+    """Render rays: origins (R,3), unit directions (R,3) float (deformed/world space) → :class:`RenderOutput`
+    (``rgb (R,3)``, ``depth (R,)``, ``opacity (R,)``, on the field's device) — see the module docstring.
     Differentiable with respect to the field's parameters (training calls it under autograd). ``bounds`` = per-ray
     ``(near (R,), far (R,))`` overrides the ray/box intersection."""
     device = field.scene_bbox.device
@@ -311,8 +285,9 @@ def render_image(
     frame: int = 0,
     supersample: int = 1,
 ) -> torch.Tensor:
-    """Render camera ``index`` → ``(H,W,3)`` on the field's device, in chunks of ``config.chunk`` rays, without
-    autograd. ``supersample`` s: s×s stratified sub-pixel rays per pixel, averaged (``Cameras.upscale``)."""
+    """Render camera ``index`` of ``cameras`` → ``(H,W,3)`` rgb in [0,1] (the rays' dtype, float32 for the built-in
+    cameras) on the field's device, in chunks of ``config.chunk`` rays, without autograd. ``supersample`` s: s×s
+    stratified sub-pixel rays per pixel, averaged (``Cameras.upscale``)."""
     fine = cameras.upscale(supersample) if supersample > 1 else cameras
     origins, directions = generate_rays(fine, index)
     origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)

@@ -17,6 +17,7 @@ import torch
 
 from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
 from nerfedit_plugin.data.cameras import Cameras, look_at
+from nerfedit_plugin.data.datasets import to_uint8
 from nerfedit_plugin.fields.base import Field
 from nerfedit_plugin.render.renderer import RenderConfig, render_image
 
@@ -49,10 +50,6 @@ def render_views(
             images.append(image.clamp(0.0, 1.0).cpu().numpy())
             bar.advance(task)
     return images
-
-
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    return np.round(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def write_images(images: Sequence[np.ndarray], names: Sequence[str], out_dir: str | os.PathLike,

@@ -1,24 +1,31 @@
 """Conformance kit for deformer plugins (like scikit-learn's ``check_estimator``).
 
-A plugin author calls it from their own pytest module::
+A plugin author calls it from their own pytest module, one test case per property::
 
-    from nerfedit_plugin.testing.deformers import check_deformer
+    from nerfedit_plugin.testing import parametrize_with_checks
 
-    def test_conformance():
-        check_deformer(MyConfig())                              # built-in mesh + generic handle edit
-        check_deformer(MyConfig(), rest, {"twist": {...}}, base_dir=tmp_path,
-                       identity_edit={"twist": {"degrees": 0}}, skip=("rigid",))
+    @parametrize_with_checks(MyConfig())                      # built-in mesh + generic handle edit
+    def test_conformance(check):
+        check()
 
-``check_deformer`` runs every check in :data:`CHECKS`; each is also a public function (``check_identity`` …) with
-the same leading arguments, so a failing property can be run alone. Every check raises ``AssertionError`` naming
-the plugin and the property it violates. Edits are plain dicts (as read from JSON/YAML); the kit parses them with
-:func:`nerfedit_plugin.edit.spec.parse_edit_spec` using the deformer's ``spec_keys``, exactly as the CLI does.
+    @parametrize_with_checks(MyConfig(), edit={"twist": {...}}, identity_edit={"twist": {"degrees": 0}},
+                             skip=("rigid",))
+    def test_conformance_with_files(check, tmp_path):
+        ...                                                   # write the files the edit names into tmp_path
+        check(base_dir=tmp_path)                              # keywords given to the call override the bound ones
+
+or all at once with ``check_deformer(MyConfig(), ...)`` (same arguments; stops at the first failure).
+:func:`deformer_checks` lists the ``(name, check)`` pairs both use: one per entry of :data:`CHECKS` (name →
+public function such as :func:`check_identity`, with the same leading arguments, to run one property alone).
+Every check raises ``AssertionError`` naming the plugin and the property it violates. Edits are plain dicts (as
+read from JSON/YAML); the kit parses them with :func:`nerfedit_plugin.edit.spec.parse_edit_spec` using the
+deformer's ``spec_keys``, exactly as the CLI does.
 
 Identity and rigid variants of ``edit`` are found in this order:
 
 1. the ``identity_edit=`` / ``rigid_edit=`` dicts passed by the caller;
-2. optional classmethod hooks on the Deformer class, ``identity_edit(edit, rest) -> dict | None`` and
-   ``rigid_edit(edit, rest) -> dict | None`` (return ``None`` to fall back to 3.);
+2. the Deformer's classmethod hooks ``identity_edit(edit, rest) -> dict | None`` and
+   ``rigid_edit(edit, rest) -> dict | None``, declared on the base class returning ``None`` (fall back to 3.);
 3. derived from ``edit["handles"]``: identity = every transform replaced by a zero translation; rigid = every
    handle (fixed ones included) given the same rigid motion about the rest bounding-box centre.
 
@@ -31,12 +38,14 @@ from __future__ import annotations
 import ast
 import copy
 import dataclasses
+import functools
 import importlib
 import inspect
 import math
 import textwrap
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 import yaml
@@ -148,8 +157,8 @@ def _variant(config: Any, rest: SurfaceMesh, edit: dict, given: dict | None, hoo
         found = derive(edit, rest)
     if found is None:
         raise ValueError(
-            f"{_name(config)}: cannot derive the {hook.replace('_', ' ')} (no handles in the edit, no "
-            f"{config._target.__name__}.{hook} hook): pass {hook}= or skip=({hook.split('_')[0]!r},)"
+            f"{_name(config)}: cannot derive the {hook.replace('_', ' ')} (no handles in the edit, and "
+            f"{config._target.__name__}.{hook} returned None): pass {hook}= or skip=({hook.split('_')[0]!r},)"
         )
     return found
 
@@ -427,6 +436,51 @@ CHECKS: dict[str, Callable] = {
 }
 
 
+#: the keyword arguments of :func:`check_deformer` each check takes besides ``rest``, ``edit`` and ``base_dir``
+#: (``config`` takes the config alone)
+OPTIONS: dict[str, tuple[str, ...]] = {
+    "identity": ("identity_edit", "tol"),
+    "rigid": ("rigid_edit", "rigid_tol"),
+    "malformed": ("bad_edits",),
+    "points": ("tol",),
+}
+
+
+def select_checks(checks: Iterable[str], skip: Iterable[str]) -> list[str]:
+    """The names in ``checks`` (in order) not in ``skip``; a name in ``skip`` that is not a check is a usage error
+    (``ValueError``). Shared by both kits."""
+    checks, skip = list(checks), set(skip)
+    unknown = skip - set(checks)
+    if unknown:
+        raise ValueError(f"unknown checks in skip: {sorted(unknown)} (known: {checks})")
+    return [name for name in checks if name not in skip]
+
+
+def run_check(name: str, config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
+              identity_edit: dict | None = None, rigid_edit: dict | None = None, bad_edits: Iterable[dict] = (),
+              tol: float = 1e-6, rigid_tol: float = 1e-4) -> None:
+    """Run the check ``name`` of :data:`CHECKS` with :func:`check_deformer`'s arguments (it takes those it uses)."""
+    if name == "config":
+        CHECKS[name](config)
+        return
+    given = {"identity_edit": identity_edit, "rigid_edit": rigid_edit, "bad_edits": list(bad_edits), "tol": tol,
+             "rigid_tol": rigid_tol}
+    CHECKS[name](config, rest, edit, base_dir=base_dir, **{key: given[key] for key in OPTIONS.get(name, ())})
+
+
+def deformer_checks(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
+                    identity_edit: dict | None = None, rigid_edit: dict | None = None, bad_edits: Iterable[dict] = (),
+                    tol: float = 1e-6, rigid_tol: float = 1e-4,
+                    skip: Iterable[str] = ()) -> list[tuple[str, functools.partial]]:
+    """``[(name, check), ...]`` for every check in :data:`CHECKS` not named in ``skip`` (arguments as
+    :func:`check_deformer`): ``check()`` runs that one property on ``config``. Each ``check`` is a
+    :func:`functools.partial` of :func:`run_check` with every argument bound by keyword, so keywords given to the call
+    override them (``check(base_dir=tmp_path)``). Nothing runs until a check is called."""
+    bound = {"rest": rest, "edit": edit, "base_dir": base_dir, "identity_edit": identity_edit,
+             "rigid_edit": rigid_edit, "bad_edits": tuple(bad_edits), "tol": tol, "rigid_tol": rigid_tol}
+    return [(name, functools.partial(run_check, name, config, **bound)) for name in select_checks(CHECKS, skip)]
+
+
 def check_deformer(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
                    identity_edit: dict | None = None, rigid_edit: dict | None = None, bad_edits: Iterable[dict] = (),
                    tol: float = 1e-6, rigid_tol: float = 1e-4, skip: Iterable[str] = ()) -> None:
@@ -436,18 +490,7 @@ def check_deformer(config: Any, rest: SurfaceMesh | None = None, edit: dict | No
     relative to ``base_dir``) to :func:`default_edit`. ``tol`` bounds identity and ``deform_points`` errors,
     ``rigid_tol`` the Procrustes residual, both relative to the rest bounding-box diagonal.
     """
-    skip = set(skip)
-    unknown = skip - set(CHECKS)
-    if unknown:
-        raise ValueError(f"unknown checks in skip: {sorted(unknown)} (known: {list(CHECKS)})")
-    extra = {"identity": {"identity_edit": identity_edit, "tol": tol},
-             "rigid": {"rigid_edit": rigid_edit, "rigid_tol": rigid_tol},
-             "malformed": {"bad_edits": list(bad_edits)},
-             "points": {"tol": tol}}
-    for name, check in CHECKS.items():
-        if name in skip:
-            continue
-        if name == "config":
-            check(config)
-        else:
-            check(config, rest, edit, base_dir=base_dir, **extra.get(name, {}))
+    for _, check in deformer_checks(config, rest, edit, base_dir=base_dir, identity_edit=identity_edit,
+                                    rigid_edit=rigid_edit, bad_edits=bad_edits, tol=tol, rigid_tol=rigid_tol,
+                                    skip=skip):
+        check()

@@ -1,13 +1,18 @@
 """Conformance kit for field plugins (group ``nerfedit.fields``), the counterpart of :mod:`nerfedit_plugin.testing.deformers`.
 
-A field author calls it from their own pytest module::
+A field author calls it from their own pytest module, one test case per property::
 
-    from nerfedit_plugin.testing.fields import check_field
+    from nerfedit_plugin.testing import parametrize_with_checks
 
-    def test_conformance():
-        check_field(MyFieldConfig())
+    @parametrize_with_checks(MyFieldConfig())          # or skip=("extract",) …
+    def test_conformance(check):
+        check()
 
-Checks (each a public function taking the built field or its config; :func:`check_field` runs them all):
+or all at once with ``check_field(MyFieldConfig())`` (stops at the first failure). :func:`field_checks` lists the
+``(name, check)`` pairs both use, one per entry of :data:`CHECKS`; the checks of one call share one field, built on
+first use by :func:`build_field`.
+
+Checks (each a public function taking the built field or its config):
 ``config`` (dataclass with a docstring per field, lossless YAML round trip, ``_target`` a Field subclass with a
 valid ``kind``/``data``), ``query`` (shapes, dtypes, device, finite values, colours in [0,1], densities ≥ 0,
 deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None), ``checkpoint`` (save → load through the registry gives the same
@@ -19,21 +24,23 @@ box, or a ValueError when the level is outside the field's range).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import tempfile
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 import torch
 
-from nerfedit_plugin.data.cameras import Cameras, look_at
-from nerfedit_plugin.io.checkpoint import backend_name, load_field
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.checkpoint import backend_name, load_field
 from nerfedit_plugin.render.renderer import RenderConfig, render_image
-from nerfedit_plugin.testing.deformers import check_documented_round_trip, default_mesh
+from nerfedit_plugin.testing.deformers import check_documented_round_trip, default_mesh, select_checks
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 """Scene box of fields built from a config by the kit."""
@@ -73,7 +80,10 @@ def check_config(config: Any) -> None:
     assert target.kind in ("density", "sdf"), f"{target.__name__}.kind must be 'density' or 'sdf', not {target.kind!r}"
     assert target.data in ("images", "mesh"), f"{target.__name__}.data must be 'images' or 'mesh', not {target.data!r}"
     if target.data == "mesh":
-        assert callable(getattr(target, "from_mesh", None)), f"{target.__name__}: data='mesh' needs from_mesh()"
+        assert target.from_mesh.__func__ is not Field.from_mesh.__func__, (
+            f"{target.__name__}: data='mesh' needs from_mesh()")
+    else:
+        assert target.fit is not Field.fit, f"{target.__name__}: data='images' needs fit()"
     check_documented_round_trip(config)
 
 
@@ -131,15 +141,10 @@ def check_checkpoint(field: Field) -> None:
 
 def _cube_tets(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The box ``[low, high]`` as 6 positively oriented Kuhn tets."""
-    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.float64)
-    vertices = low + corners * (high - low)
-    paths = [(4, 2, 1), (4, 1, 2), (2, 4, 1), (2, 1, 4), (1, 4, 2), (1, 2, 4)]  # axis-step orders (bit values)
-    tets = np.array([[0, a, a + b, 7] for a, b, _ in paths])
-    volumes = np.einsum("ij,ij->i", np.cross(vertices[tets[:, 1]] - vertices[tets[:, 0]],
-                                             vertices[tets[:, 2]] - vertices[tets[:, 0]]),
-                        vertices[tets[:, 3]] - vertices[tets[:, 0]])
-    tets[volumes < 0] = tets[volumes < 0][:, [0, 2, 1, 3]]
-    return vertices, tets
+    from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
+
+    vertices, tets = kuhn_grid(1, low, high)
+    return vertices, orient_tets(vertices, tets)
 
 
 def check_identity(field: Field, size: int = 24) -> None:
@@ -175,18 +180,34 @@ def check_extract(field: Field, resolution: int = 24) -> None:
         f"{name}.extract_mesh: vertices outside the scene box")
 
 
-CHECKS = ("config", "query", "checkpoint", "identity", "extract")
+CHECKS: dict[str, Callable] = {
+    "config": check_config,
+    "query": check_query,
+    "checkpoint": check_checkpoint,
+    "identity": check_identity,
+    "extract": check_extract,
+}
+"""Check name → function: ``config`` takes the config, the others the field :func:`build_field` makes of it."""
+
+
+def run_check(name: str, config: FieldConfig, field: Callable[[], Field] | None = None) -> None:
+    """Run the check ``name`` of :data:`CHECKS` on ``config`` (``config``) or on ``field()`` (default: a new
+    :func:`build_field` of ``config``)."""
+    if name == "config":
+        CHECKS[name](config)
+    else:
+        CHECKS[name](build_field(config) if field is None else field())
+
+
+def field_checks(config: FieldConfig, *, skip: Iterable[str] = ()) -> list[tuple[str, functools.partial]]:
+    """``[(name, check), ...]`` for every check in :data:`CHECKS` not named in ``skip``: ``check()`` runs that one
+    property. The checks of one call share one field, built by :func:`build_field` when the first of them needs it
+    (not here: nothing runs until a check is called)."""
+    field = functools.cache(functools.partial(build_field, config))
+    return [(name, functools.partial(run_check, name, config, field=field)) for name in select_checks(CHECKS, skip)]
 
 
 def check_field(config: FieldConfig, *, skip: Iterable[str] = ()) -> None:
     """Run every check on ``config`` and the field :func:`build_field` makes of it, except those in ``skip``."""
-    skip = set(skip)
-    if skip - set(CHECKS):
-        raise ValueError(f"unknown checks in skip: {sorted(skip - set(CHECKS))} (known: {list(CHECKS)})")
-    if "config" not in skip:
-        check_config(config)
-    field = build_field(config)
-    for name, check in (("query", check_query), ("checkpoint", check_checkpoint), ("identity", check_identity),
-                        ("extract", check_extract)):
-        if name not in skip:
-            check(field)
+    for _, check in field_checks(config, skip=skip):
+        check()

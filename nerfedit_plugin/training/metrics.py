@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import functools
 import importlib.util
+import math
 import pickle
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from nerfedit_plugin.data.datasets import composite, read_image
 from nerfedit_plugin.errors import NerfEditError
@@ -27,15 +27,26 @@ SCALE = (0.458, 0.448, 0.450)
 ALEXNET = ((4, 2, False), (1, 2, True), (1, 1, True), (1, 1, False), (1, 1, False))
 
 
+def psnr_from_mse(mse: float | torch.Tensor) -> float:
+    """Mean squared error of images in [0, 1] (a float, or a 0-d tensor on any device: read once) → peak
+    signal-to-noise ratio in dB, ``−10 log10(mse)``; mse floored at 1e-12 (at most 120 dB)."""
+    return -10.0 * math.log10(max(float(mse), 1e-12))
+
+
 def psnr(pred: np.ndarray, gt: np.ndarray) -> float:
-    """Peak signal-to-noise ratio (dB) of images in [0, 1]; ``inf`` for identical images."""
+    """Images of the same shape in [0, 1] → PSNR in dB (:func:`psnr_from_mse` of scikit-image's mean squared
+    error); ``inf`` for identical images."""
+    from skimage.metrics import mean_squared_error
+
     if np.array_equal(pred, gt):
         return float("inf")
-    return float(peak_signal_noise_ratio(gt, pred, data_range=1.0))
+    return psnr_from_mse(mean_squared_error(gt, pred))
 
 
 def ssim(pred: np.ndarray, gt: np.ndarray) -> float:
     """Structural similarity of (H, W, 3) images in [0, 1]."""
+    from skimage.metrics import structural_similarity
+
     return float(structural_similarity(gt, pred, data_range=1.0, channel_axis=-1))
 
 

@@ -12,7 +12,6 @@ CPU time of the training thread (``TrainerConfig.clock``), which does not grow w
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Literal
@@ -20,6 +19,7 @@ from typing import Any, Callable, Iterable, Literal
 import torch
 
 from nerfedit_plugin.data.cameras import generate_rays
+from nerfedit_plugin.training.metrics import psnr_from_mse
 
 
 @dataclass
@@ -62,11 +62,6 @@ class TrainerConfig:
         return cls(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0, progress=False)
 
 
-def psnr(mse: float | torch.Tensor) -> float:
-    """Peak signal-to-noise ratio of images in [0,1]: ``−10 log10(mse)``."""
-    return -10.0 * math.log10(max(float(mse), 1e-12))
-
-
 @torch.no_grad()
 def evaluate(field: Any, dataset: Any, render_config: Any, views: int | None = None) -> float:
     """PSNR over all pixels of the first ``views`` images of ``dataset`` rendered by ``field``."""
@@ -77,7 +72,7 @@ def evaluate(field: Any, dataset: Any, render_config: Any, views: int | None = N
     for i in range(count):
         image = render_image(field, dataset.cameras, i, render_config)
         squared += float(((image - dataset.images[i].to(image.device)) ** 2).mean())
-    return psnr(squared / count)
+    return psnr_from_mse(squared / count)
 
 
 def train(
@@ -155,14 +150,14 @@ def train(
                 log["step"].append(step)
                 log["seconds"].append(seconds)
                 log["loss"].append(float(loss.detach()))
-                log["psnr"].append(psnr(mse.detach()))
+                log["psnr"].append(psnr_from_mse(mse.detach()))
                 done = max(step / config.max_steps, seconds / config.max_seconds)
                 bar.update(done, log["loss"][-1], log["psnr"][-1], log["eval"][-1][1] if log["eval"] else None)
             if config.eval_every_seconds > 0 and seconds >= next_eval and seconds < config.max_seconds:
                 run_eval(seconds)
                 next_eval += config.eval_every_seconds
         if step:
-            bar.update(1.0, float(loss.detach()), psnr(mse.detach()), None)
+            bar.update(1.0, float(loss.detach()), psnr_from_mse(mse.detach()), None)
     run_eval(seconds)
     field.eval()
     log["steps"], log["train_seconds"] = step, seconds

@@ -18,6 +18,7 @@ import yaml
 
 from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.data.datasets import to_uint8
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -149,7 +150,7 @@ def screenshot(geometries: list, path: str | os.PathLike, width: int = 960, heig
     import skimage.io
 
     with atomic_path(path) as tmp:
-        skimage.io.imsave(tmp, np.round(np.clip(image, 0, 1) * 255).astype(np.uint8), check_contrast=False)
+        skimage.io.imsave(tmp, to_uint8(image), check_contrast=False)
     return Path(path)
 
 

@@ -6,36 +6,12 @@ import pytest
 import torch
 
 from nerfedit_plugin.bending.locate import EPS, TetLocator, barycentric, box_cells, locate_brute_force
+from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
 
 
 @pytest.fixture(params=["numba", "torch"])
 def kernel(request):
     return request.param
-
-
-def cube_grid_tets(n: int, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Conforming tet mesh of an n^3 grid of cubes (6 Kuhn tets per cube), dyadic coordinates."""
-    g = np.arange(n + 1) * (size / n)
-    vertices = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-    index = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
-    corner = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    tets = []
-    for perm in ([0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]):
-        path = [corner.copy()]
-        for axis in perm:  # walk from corner (0,0,0) to (1,1,1) one axis at a time
-            step = path[-1].copy()
-            step[:, axis] += 1
-            path.append(step)
-        tets.append(np.stack([index[p[:, 0], p[:, 1], p[:, 2]] for p in path], 1))
-    return vertices.astype(np.float64), np.concatenate(tets)
-
-
-def reorient(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
-    negative = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) < 0
-    tets = tets.copy()
-    tets[negative] = tets[negative][:, [1, 0, 2, 3]]
-    return tets
 
 
 @pytest.fixture(scope="session")
@@ -48,7 +24,7 @@ def sphere_tets():
     vertices, tets = pytetwild.tetrahedralize(
         mesh.vertices, mesh.faces.astype(np.int32), edge_length_fac=0.07, optimize=True, epsilon=5e-3, quiet=True)
     vertices = np.asarray(vertices, dtype=np.float64)
-    return vertices, reorient(vertices, np.asarray(tets, dtype=np.int64))
+    return vertices, orient_tets(vertices, tets)
 
 
 def probe_points(vertices: np.ndarray, tets: np.ndarray, n_random: int, seed: int = 0) -> np.ndarray:
@@ -105,7 +81,7 @@ def test_grid_equals_brute_force_on_pytetwild_mesh(sphere_tets, dtype, kernel):
     (torch.float32, {"cells_per_tet": 16.0, "rounds": 6}),
 ])
 def test_grid_equals_brute_force_on_cube_grid(dtype, settings, kernel):
-    vertices, tets = cube_grid_tets(5)
+    vertices, tets = kuhn_grid(5)
     points = probe_points(vertices, tets, 3000, seed=1)
     tet, _ = assert_same_as_brute_force(vertices, tets, points, dtype, kernel, **settings)
     # shared vertices, faces and edges are exactly representable here: they are all found (no cracks) and
@@ -130,7 +106,7 @@ def test_points_deep_inside_interior_tets_are_never_lost(sphere_tets, kernel):
 
 def test_overlapping_and_degenerate_tets_follow_the_rule(kernel):
     """Two overlapping copies of a grid (so no tet is 'safe') plus zero-volume tets: still brute-force exact."""
-    vertices, tets = cube_grid_tets(3)
+    vertices, tets = kuhn_grid(3)
     shifted = vertices + [0.13, 0.05, -0.07]
     flat = np.array([[0, 1, 2, 3]]) + 2 * len(vertices)  # four collinear points: zero volume
     line = np.linspace(0, 1, 4)[:, None] * [1.0, 1.0, 0.0]
@@ -144,7 +120,7 @@ def test_overlapping_and_degenerate_tets_follow_the_rule(kernel):
 
 
 def test_outside_nan_and_empty_inputs(kernel):
-    vertices, tets = cube_grid_tets(2)
+    vertices, tets = kuhn_grid(2)
     locator = TetLocator(vertices, tets, kernel=kernel)
     points = torch.tensor([[-5.0, 0.5, 0.5], [0.5, 0.5, 7.0], [float("nan"), 0.5, 0.5], [float("inf"), 0, 0],
                            [0.5, 0.5, 0.5]])
@@ -185,7 +161,7 @@ def test_kernels_agree_on_ray_like_points(sphere_tets):
 
 
 def test_kernel_choice_is_checked():
-    vertices, tets = cube_grid_tets(1)
+    vertices, tets = kuhn_grid(1)
     assert TetLocator(vertices, tets).kernel == "numba"  # the CPU default
     with pytest.raises(ValueError, match="kernel"):
         TetLocator(vertices, tets, kernel="cython")

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 EDIT = {
@@ -27,7 +27,8 @@ def workdir(tmp_path, capsule, monkeypatch):
 
 
 def edit(workdir, *extra):
-    return main(["edit", "--mesh", str(workdir / "capsule.ply"), "--edit", str(workdir / "edit.json"), "--out", str(workdir / "out"), *extra])
+    return main(["edit", "--mesh", str(workdir / "capsule.ply"), "--edit", str(workdir / "edit.json"),
+                 "--out", str(workdir / "out"), *extra])
 
 
 def test_edit_writes_every_output(workdir, capsule):
@@ -69,7 +70,8 @@ def test_bad_spec_is_one_line_error_and_writes_nothing(workdir, capsys):
 def test_unknown_deformer_and_missing_mesh(workdir, capsys):
     assert edit(workdir, "--deformer", "nope") == 2
     assert "unknown deformer 'nope'" in capsys.readouterr().err
-    assert main(["edit", "--mesh", str(workdir / "none.ply"), "--edit", str(workdir / "edit.json"), "--out", str(workdir / "o")]) == 2
+    assert main(["edit", "--mesh", str(workdir / "none.ply"), "--edit", str(workdir / "edit.json"),
+                 "--out", str(workdir / "o")]) == 2
     assert "none.ply: mesh file not found" in capsys.readouterr().err
 
 

@@ -5,9 +5,10 @@ import json
 import numpy as np
 from PIL import Image
 
-from nerfedit_plugin.cli.app import main
-from nerfedit_plugin.data.datasets import read_image
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.cli.app import command, main
+from nerfedit_plugin.cli.common import parse
+from nerfedit_plugin.data.datasets import read_image
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 
@@ -34,3 +35,5 @@ def test_tiny_demo_runs_every_stage(tmp_path, capsys):
     with Image.open(out / "renders" / "turntable.gif") as gif:
         assert gif.n_frames == 4
     assert np.isfinite(summary["before"]["psnr"]) and np.isfinite(summary["after"]["psnr"])
+    rerun = parse(command("demo"), ["--load-config", str(out / "config.yml"), "--out", str(tmp_path / "again")])
+    assert (rerun.preset, rerun.field, rerun.out) == ("tiny", "neus", tmp_path / "again")  # config.yml records the args

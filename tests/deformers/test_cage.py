@@ -13,7 +13,7 @@ from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.registry import DEFORMERS, discover
-from nerfedit_plugin.testing import check_deformer, default_edit, default_mesh
+from nerfedit_plugin.testing import default_edit, default_mesh, parametrize_with_checks
 
 REST = default_mesh()  # ellipsoid, semi-axes 0.4, 0.5, 1.0
 _sphere = trimesh.creation.icosphere(subdivisions=1)  # inradius 0.93
@@ -39,17 +39,20 @@ def files(tmp_path):
 
 
 # ---- conformance -----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("coordinates", ["mvc", "green"])
-def test_conformance_kit_auto_cage_with_handles(coordinates):
-    check_deformer(CageConfig(coordinates=coordinates))
+BOTH = [CageConfig(coordinates="mvc"), CageConfig(coordinates="green")]
 
 
-@pytest.mark.parametrize("coordinates", ["mvc", "green"])
-def test_conformance_kit_given_cages(coordinates, files, tmp_path):
+@parametrize_with_checks(BOTH)
+def test_conformance_kit_auto_cage_with_handles(check):
+    check()
+
+
+@parametrize_with_checks(BOTH, rest=REST, edit={"cage": "cage.ply", "deformed_cage": "moved.ply", "frames": 2})
+def test_conformance_kit_given_cages(check, files, tmp_path):
     a, b = AFFINE
-    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ a.T + b)),
-            "frames": 2}
-    check_deformer(CageConfig(coordinates=coordinates), REST, edit, base_dir=tmp_path)
+    files("cage.ply", CAGE)
+    files("moved.ply", CAGE.with_vertices(CAGE.vertices @ a.T + b))
+    check(base_dir=tmp_path)
 
 
 def test_registered_as_entry_point():

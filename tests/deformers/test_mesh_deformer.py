@@ -10,6 +10,7 @@ from deformers.mesh import MeshConfig
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.testing import parametrize_with_checks
 
 
 @pytest.fixture
@@ -54,18 +55,11 @@ def test_wrong_vertex_count_and_connectivity_are_errors(tmp_path, rest):
         bind(tmp_path, rest, {"deformed": "none/*.ply"})
 
 
-def test_conformance_kit(tmp_path, rest):
-    from nerfedit_plugin.testing import check_deformer
-
+@parametrize_with_checks(MeshConfig(), edit={"deformed": "edited.ply", "frames": 2},
+                         identity_edit={"deformed": "same.ply"}, rigid_edit={"deformed": "rigid.ply"})
+def test_conformance_kit(check, tmp_path, rest):
     rot = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
     rest.with_vertices(rest.vertices * [1.0, 1.3, 0.8]).save(tmp_path / "edited.ply")
     rest.save(tmp_path / "same.ply")
     rest.with_vertices(rest.vertices @ rot.T + 0.5).save(tmp_path / "rigid.ply")
-    check_deformer(
-        MeshConfig(),
-        rest,
-        {"deformed": "edited.ply", "frames": 2},
-        base_dir=tmp_path,
-        identity_edit={"deformed": "same.ply"},
-        rigid_edit={"deformed": "rigid.ply"},
-    )
+    check(rest=rest, base_dir=tmp_path)

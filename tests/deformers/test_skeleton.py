@@ -16,7 +16,7 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.io.samples import sample_mesh_path
-from nerfedit_plugin.testing import check_deformer
+from nerfedit_plugin.testing import parametrize_with_checks
 
 # A closed tube along z (radius 0.25, z ∈ [-1, 1], a vertex ring every 0.05 including z = 0) and a two-bone chain.
 _Z = np.linspace(-1, 1, 41)
@@ -304,12 +304,20 @@ def test_entry_point_is_registered():
     assert discover().config_class(DEFORMERS, "skeleton") is SkeletonConfig
 
 
-@pytest.mark.parametrize("method", ["dqs", "lbs"])
-def test_conformance_kit(folder, method):
-    edit = {**pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 45}}), "frames": 2}
-    rigid = {**pose(lower={"rotate": {"axis": [1, 1, 0], "degrees": 35}, "translate": [0.2, 0, -0.1]}), "frames": 2}
-    check_deformer(SkeletonConfig(method=method), TUBE, edit, base_dir=folder, rigid_edit=rigid,
-                   bad_edits=[pose(elbow={"translate": [0, 0, 1]}), {"skeleton": "chain.json"}])
-    check_deformer(SkeletonConfig(method=method), TUBE, {"skeleton": "chain.bvh", "frames": 3}, base_dir=folder,
-                   identity_edit={"skeleton": "chain.bvh", "pose": {"lower": {"translate": [0, 0, 0]}}},
-                   rigid_edit={"skeleton": "chain.bvh", "pose": {"lower": {"rotate": {"axis": [0, 1, 0], "degrees": 30}}}})
+BOTH = [SkeletonConfig(method="dqs"), SkeletonConfig(method="lbs")]
+
+
+@parametrize_with_checks(
+    BOTH, rest=TUBE, edit={**pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 45}}), "frames": 2},
+    rigid_edit={**pose(lower={"rotate": {"axis": [1, 1, 0], "degrees": 35}, "translate": [0.2, 0, -0.1]}), "frames": 2},
+    bad_edits=[pose(elbow={"translate": [0, 0, 1]}), {"skeleton": "chain.json"}])
+def test_conformance_kit_json_pose(check, folder):
+    check(base_dir=folder)
+
+
+@parametrize_with_checks(
+    BOTH, rest=TUBE, edit={"skeleton": "chain.bvh", "frames": 3},
+    identity_edit={"skeleton": "chain.bvh", "pose": {"lower": {"translate": [0, 0, 0]}}},
+    rigid_edit={"skeleton": "chain.bvh", "pose": {"lower": {"rotate": {"axis": [0, 1, 0], "degrees": 30}}}})
+def test_conformance_kit_bvh_clip(check, folder):
+    check(base_dir=folder)

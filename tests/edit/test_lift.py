@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.edit.lift import Lift
-from nerfedit_plugin.edit.proxy import tet_signed_volumes
+from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 ROT = Rotation.from_rotvec([0.3, -0.5, 0.8]).as_matrix()
 SHIFT = np.array([0.2, -0.1, 0.4])
@@ -73,11 +73,18 @@ def test_direct_lift_evaluates_the_space_map(capsule, capsule_proxy):
     from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
     from nerfedit_plugin.errors import NerfEditError
 
-    class Bend(Deformer):
+    class Surface(Deformer):
+        def bind(self, rest, edit):
+            self.rest = rest
+
+        def deform(self):
+            return bend(self.rest.vertices)[None]
+
+    class Bend(Surface):
         def deform_points(self, points, frame):
             return bend(points)
 
     lifted, _ = Lift(capsule_proxy, capsule, "direct", deformer=Bend(DeformerConfig()))(bend(capsule.vertices)[None])
     assert np.allclose(lifted[0], bend(capsule_proxy.vertices))
     with pytest.raises(NerfEditError, match="has no deform_points"):
-        Lift(capsule_proxy, capsule, "direct", deformer=Deformer(DeformerConfig()))
+        Lift(capsule_proxy, capsule, "direct", deformer=Surface(DeformerConfig()))

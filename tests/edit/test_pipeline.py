@@ -44,7 +44,7 @@ def test_mesh_run_extracts_its_mesh_unchanged(scene, mesh_run):
     assert np.array_equal(source.faces, extracted.faces)
     np.testing.assert_allclose(extracted.vertices, source.vertices, atol=1e-6)
     assert open_run(mesh_run).camera_distance() is None
-    assert main(["extract", "--run", str(mesh_run)]) == 2  # mesh.ply exists: needs --overwrite
+    assert main(["extract", "--run", str(mesh_run)]) == 0  # a mesh field's run has its mesh.ply: nothing to do
 
 
 def test_edited_render_matches_ground_truth_of_the_deformed_mesh(scene, mesh_run, monkeypatch):
@@ -119,7 +119,7 @@ def test_animated_edit_renders_every_frame(scene, mesh_run, tmp_path, monkeypatc
     cameras = scene / "data" / "transforms_test.json"
     assert main(["render", "--run", str(mesh_run), "--deformation", str(tmp_path / "e" / "deformation.npz"),
                  "--cameras", str(cameras), "--out", str(tmp_path / "r")]) == 0
-    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["frame_0000", "frame_0001"]
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["config.yml", "frame_0000", "frame_0001"]
     assert main(["render", "--run", str(mesh_run), "--deformation", str(tmp_path / "e" / "deformation.npz"),
                  "--cameras", str(cameras), "--out", str(tmp_path / "one"), "--frame", "1"]) == 0
     for name in ("r_0.png", "r_1.png", "r_2.png"):  # --frame 1 renders what the full animation's frame 1 holds

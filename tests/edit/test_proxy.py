@@ -15,18 +15,8 @@ from nerfedit_plugin.edit import proxy as proxy_module
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.bending.locate import locate_brute_force
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.edit.proxy import (
-    DEGENERATE_VOLUME_RATIO,
-    ProxyConfig,
-    TetProxy,
-    boundary_faces,
-    build_proxy,
-    cached_proxy,
-    clean_tets,
-    proxy_cache_key,
-    resolve_offset,
-    tet_signed_volumes,
-)
+from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, build_proxy, cached_proxy, proxy_cache_key, resolve_offset
+from nerfedit_plugin.geometry.tets import DEGENERATE_VOLUME_RATIO, boundary_faces, clean_tets, tet_signed_volumes
 
 FAST = ProxyConfig(cage_faces=400, edge_length_fac=0.1)
 

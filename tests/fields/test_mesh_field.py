@@ -17,11 +17,8 @@ from nerfedit_plugin.edit.lift import Lift
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.edit.proxy import TetProxy, embed_points
 from nerfedit_plugin.render.renderer import RenderConfig, render_image
+from nerfedit_plugin.training.metrics import psnr
 from nerfedit_plugin.data.synthetic import GenerateConfig, bend, colorize, generate_dataset, render_mesh
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(-10 * np.log10(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,6 @@ Oracles: libigl's cotangent Laplacian and ARAP solver, batched SVD for the rotat
 from __future__ import annotations
 
 import functools
-import itertools
 import os
 import sys
 from pathlib import Path
@@ -23,6 +22,7 @@ from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, ArapSolver, cotangent_w
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
 
 igl = pytest.importorskip("igl")
 
@@ -41,26 +41,11 @@ def sample_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
 def tet_grid(n: int = 6, jitter: float = 0.25, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A box [0,2]×[0,1]×[0,1] of n·(n/2)·(n/2) cubes, 6 Kuhn tets each, interior vertices jittered."""
     dims = np.array([n, n // 2, n // 2])
-    grid = np.stack(np.meshgrid(*(np.arange(d + 1) for d in dims), indexing="ij"), -1).reshape(-1, 3)
-    index = lambda p: (p[..., 0] * (dims[1] + 1) + p[..., 1]) * (dims[2] + 1) + p[..., 2]  # noqa: E731
-    cells = np.stack(np.meshgrid(*(np.arange(d) for d in dims), indexing="ij"), -1).reshape(-1, 3)
-    tets = []
-    for perm in itertools.permutations(range(3)):
-        corner, path = cells.copy(), [cells.copy()]
-        for axis in perm:
-            corner = corner.copy()
-            corner[:, axis] += 1
-            path.append(corner)
-        tets.append(np.stack([index(p) for p in path], 1))
-    tets = np.concatenate(tets)
-    vertices = grid / (n // 2)
+    vertices, tets = kuhn_grid(dims, 0.0, dims / (n // 2))
     rng = np.random.default_rng(seed)
-    interior = np.all((grid > 0) & (grid < dims), axis=1)
+    interior = np.all((vertices > 0) & (vertices < vertices.max(0)), axis=1)
     vertices[interior] += rng.uniform(-jitter, jitter, (interior.sum(), 3)) / (n // 2)
-    a, b, c, d = (vertices[tets[:, i]] for i in range(4))
-    flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) < 0
-    tets[flip] = tets[flip][:, [1, 0, 2, 3]]
-    return vertices, tets
+    return vertices, orient_tets(vertices, tets)
 
 
 @functools.lru_cache(maxsize=None)
@@ -393,9 +378,3 @@ def test_vertex_with_only_degenerate_elements_is_named():
     faces = np.vstack([faces, [[n - 3, n - 2, n - 1]]])
     with pytest.raises(NerfEditError, match=f"vertex {n - 2} has no stiffness"):
         ArapSolver(vertices, faces, fixed=[0, n - 3])
-
-
-def test_conformance_kit():
-    from nerfedit_plugin.testing import check_deformer
-
-    check_deformer(ArapConfig())

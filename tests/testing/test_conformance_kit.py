@@ -1,26 +1,39 @@
-"""The conformance kit passes a correct deformer and fails each deliberately broken one on the right property."""
+"""The conformance kit passes a correct deformer and fails each deliberately broken one on the right property;
+parametrize_with_checks makes one named pytest case per property."""
 
 import dataclasses
+import inspect
 import math
+import re
+import textwrap
 
 import numpy as np
 import pytest
 import tyro
 from scipy.spatial.transform import Rotation
 
+import nerfedit_plugin
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.mesh_field import MeshFieldConfig
 from nerfedit_plugin.testing import (
     CHECKS,
+    FIELD_CHECKS,
     check_config,
     check_deformer,
     check_identity,
     check_malformed,
     default_edit,
     default_mesh,
+    deformer_checks,
+    field_checks,
     malformed_edits,
+    parametrize_with_checks,
     rigid_fit,
 )
+from nerfedit_plugin.testing import fields as field_kit
+
+pytest_plugins = ["pytester"]
 
 
 class FollowDeformer(Deformer):
@@ -197,8 +210,8 @@ def test_config_checks():
         check_config(NotYaml())
 
 
-class Shift(Deformer):
-    """A spec-less-handles plugin: ``{"amount": a}`` moves everything by a·t along x; hooks give its variants."""
+class NoHooks(Deformer):
+    """A spec-less-handles plugin: ``{"amount": a}`` moves everything by a·t along x; the base's kit hooks (None)."""
 
     spec_keys = frozenset({"amount"})
 
@@ -210,6 +223,10 @@ class Shift(Deformer):
 
     def deform(self):
         return np.stack([self.rest + [t * self.amount, 0.0, 0.0] for t in self.times])
+
+
+class Shift(NoHooks):
+    """The same plugin with ``identity_edit`` / ``rigid_edit`` hooks giving its variants."""
 
     @classmethod
     def identity_edit(cls, edit, rest):
@@ -223,10 +240,6 @@ class Shift(Deformer):
 def test_hooks_and_explicit_variants_for_plugins_without_handles():
     edit = {"amount": 0.2, "frames": 2}
     check_deformer(config_of(Shift), edit=edit, skip=("config",))  # identity/rigid through the hooks
-
-    class NoHooks(Shift):
-        identity_edit = rigid_edit = None
-
     with pytest.raises(ValueError, match=r"pass identity_edit= or skip=\('identity',\)"):
         check_identity(config_of(NoHooks), edit=edit)
     check_deformer(config_of(NoHooks), edit=edit, identity_edit={"amount": 0}, rigid_edit={"amount": 1.0}, skip=("config",))
@@ -273,3 +286,108 @@ def test_rigid_fit():
     assert np.allclose(r, rotation) and np.allclose(t, [1, 2, 3]) and residual < 1e-12
     assert rigid_fit(points, 1.1 * points)[2] > 0.05
     assert rigid_fit(points, -points)[2] > 0.1  # a reflection is not a rotation
+
+
+# ---- one case per property: deformer_checks / field_checks / parametrize_with_checks --------------------------------
+@parametrize_with_checks([FollowConfig(), FollowConfig(strength=2.0)])
+def test_reference_deformer_case_by_case(check):
+    check()
+
+
+def _ids(mark) -> list[str]:
+    assert mark.mark.args[0] == "check" and len(mark.mark.args[1]) == len(mark.mark.kwargs["ids"])
+    return mark.mark.kwargs["ids"]
+
+
+def test_one_case_per_check_with_readable_ids():
+    assert _ids(parametrize_with_checks(FollowConfig())) == [f"FollowConfig-{name}" for name in CHECKS]
+    several = _ids(parametrize_with_checks([FollowConfig(), FollowConfig(strength=2.0)], skip=("rigid", "points")))
+    kept = [name for name in CHECKS if name not in ("rigid", "points")]
+    assert several == [f"FollowConfig-{n}" for n in kept] + [f"FollowConfig(strength=2.0)-{n}" for n in kept]
+    assert _ids(parametrize_with_checks(MeshFieldConfig())) == [f"MeshFieldConfig-{name}" for name in FIELD_CHECKS]
+    assert [name for name, _ in deformer_checks(FollowConfig(), skip=("config",))] == list(CHECKS)[1:]
+    assert [name for name, _ in field_checks(MeshFieldConfig(), skip=("extract",))] == list(FIELD_CHECKS)[:-1]
+
+
+def test_usage_errors_at_collection():
+    with pytest.raises(ValueError, match=r"unknown checks in skip: \['speed'\]"):
+        parametrize_with_checks(FollowConfig(), skip=("speed",))
+    with pytest.raises(ValueError, match=r"unknown checks in skip: \['rigid'\]"):  # a deformer check, not a field one
+        parametrize_with_checks(MeshFieldConfig(), skip=("rigid",))
+    with pytest.raises(TypeError, match=r"expected a DeformerConfig or FieldConfig instance"):
+        parametrize_with_checks(FollowConfig)  # the class, not an instance
+    with pytest.raises(TypeError, match=r"unexpected keyword argument 'edit'"):
+        parametrize_with_checks(MeshFieldConfig(), edit={})
+
+
+def test_public_api_names():
+    assert nerfedit_plugin.parametrize_with_checks is parametrize_with_checks
+    assert nerfedit_plugin.check_deformer is check_deformer and nerfedit_plugin.check_field is field_kit.check_field
+
+
+EXACT = [b for b in BROKEN if b[0] in (Noisy, IgnoresIdentity, Shearing, Lenient, WrongError, BadPoints)]
+
+
+@pytest.mark.parametrize("deformer, check, message", EXACT, ids=[b[0].__name__ for b in EXACT])
+def test_broken_deformer_fails_exactly_its_case(deformer, check, message):
+    edit = {**default_edit(default_mesh()), "amount": 1.0} if issubclass(deformer, Lenient) else None
+    failed = {}
+    for name, run in deformer_checks(config_of(deformer), edit=edit):
+        try:
+            run()
+        except AssertionError as exc:
+            failed[name] = str(exc)
+    assert list(failed) == [check], failed
+    assert re.search(message, failed[check])
+
+
+def test_call_keywords_override_the_bound_ones(monkeypatch, tmp_path):
+    seen = []
+    monkeypatch.setitem(CHECKS, "malformed", lambda config, rest, edit, **kw: seen.append((rest, edit, kw)))
+    check = dict(deformer_checks(FollowConfig(), edit={"frames": 1}, bad_edits=[{"a": 1}]))["malformed"]
+    check()
+    check(base_dir=tmp_path, bad_edits=())
+    assert seen == [(None, {"frames": 1}, {"base_dir": None, "bad_edits": [{"a": 1}]}),
+                    (None, {"frames": 1}, {"base_dir": tmp_path, "bad_edits": []})]
+
+
+def test_field_checks_share_one_lazily_built_field(monkeypatch):
+    built, ran = [], []
+    monkeypatch.setattr(field_kit, "build_field", lambda config: built.append(config) or "field")
+    for name in FIELD_CHECKS:
+        monkeypatch.setitem(field_kit.CHECKS, name, lambda arg, name=name: ran.append((name, arg)))
+    config = MeshFieldConfig()
+    mark = parametrize_with_checks([config, config])
+    assert built == []  # nothing is built at collection
+    for check in mark.mark.args[1]:
+        check()
+    assert built == [config, config]  # once per config, not per check
+    assert ran == 2 * ([("config", config)] + [(name, "field") for name in list(FIELD_CHECKS)[1:]])
+
+
+def test_pytest_reports_the_failing_property_by_name(pytester):
+    """A plugin's test module run by pytest: the broken property is one failing case named after it, the others
+    pass, skipped properties have no case."""
+    config = textwrap.dedent('''
+        @dataclasses.dataclass
+        class BrokenConfig(DeformerConfig):
+            """Ignores the identity edit."""
+
+            _target: tyro.conf.Suppress[type] = dataclasses.field(default_factory=lambda: IgnoresIdentity)
+
+
+        @parametrize_with_checks(BrokenConfig(), skip=("rigid",))
+        def test_conformance(check):
+            check()
+    ''')
+    pytester.makepyfile(test_plugin="\n".join([
+        "import dataclasses", "import numpy as np", "import tyro",
+        "from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig",
+        "from nerfedit_plugin.testing import parametrize_with_checks", "",
+        inspect.getsource(FollowDeformer), inspect.getsource(IgnoresIdentity), config]))
+    result = pytester.runpytest("-q", "-p", "no:cacheprovider")
+    result.assert_outcomes(passed=len(CHECKS) - 2, failed=1)
+    result.stdout.fnmatch_lines(["*_ test_conformance[[]BrokenConfig-identity[]] _*",
+                                 "E * BrokenConfig: identity edit moved vertices by up to 0.01 *",
+                                 "FAILED test_plugin.py::test_conformance[[]BrokenConfig-identity[]]*"])
+    assert "BrokenConfig-rigid" not in result.stdout.str()

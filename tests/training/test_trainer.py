@@ -8,7 +8,8 @@ import torch
 from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.data.datasets import Dataset
 from nerfedit_plugin.fields.base import Field, FieldConfig
-from nerfedit_plugin.training.trainer import TrainerConfig, _ray_pool, psnr, train
+from nerfedit_plugin.training.metrics import psnr_from_mse as psnr
+from nerfedit_plugin.training.trainer import TrainerConfig, _ray_pool, train
 
 
 def test_psnr_of_known_errors():
@@ -30,6 +31,9 @@ class ConstantField(Field):
     def swap(self):  # replace the parameter, as a coarse-to-fine grid does
         self.logit = torch.nn.Parameter(self.logit.detach().clone())
         self.swaps += 1
+
+    def extract_mesh(self, resolution=256, level=None):
+        raise NotImplementedError
 
 
 def flat_dataset(color=(0.2, 0.6, 0.9), size=8, alpha=None):

@@ -3,15 +3,18 @@
 import numpy as np
 
 from nerfedit_plugin.edit.spec import parse_edit_spec
-from nerfedit_plugin.testing import check_deformer, default_mesh
+from nerfedit_plugin.testing import default_mesh, parametrize_with_checks
 from nerfedit_twist import TwistConfig
 
 EDIT = {"twist": {"axis": [0, 0, 1], "degrees": 90}, "frames": 2}
 
 
-def test_conformance_kit():
-    # A twist is never a rigid motion, so there is no rigid variant of the edit to check.
-    check_deformer(TwistConfig(), edit=EDIT, identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}}, skip=("rigid",))
+# One case per property of nerfedit's conformance kit (TwistConfig-output, TwistConfig-identity, ...). A twist is
+# never a rigid motion, so there is no rigid variant of the edit to check.
+@parametrize_with_checks(TwistConfig(), edit=EDIT, identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}},
+                         skip=("rigid",))
+def test_conformance_kit(check):
+    check()
 
 
 def test_top_turns_by_degrees_bottom_stays():

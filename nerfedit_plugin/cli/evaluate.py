@@ -1,0 +1,39 @@
+"""``nerfedit eval``: PSNR, SSIM and LPIPS of rendered images against ground truth."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from nerfedit_plugin.cli.common import Command, print_table
+
+
+@dataclasses.dataclass
+class EvalArgs:
+    """Compare rendered images with ground truth: PSNR, SSIM and LPIPS (when its weights are installed offline)."""
+
+    pred: Path
+    """Folder of predicted PNGs."""
+    gt: Path
+    """Folder of ground-truth PNGs (RGBA composited over --background); every one needs a same-named prediction."""
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Background the ground truth's alpha is composited over."""
+    json_out: Path | None = None
+    """Also write the per-image and mean metrics to this JSON file."""
+
+
+def evaluate(args: EvalArgs) -> None:
+    from nerfedit_plugin.io.atomic import write_text
+    from nerfedit_plugin.training.metrics import evaluate_folders
+
+    result = evaluate_folders(args.pred, args.gt, args.background)
+    rows = list(result["images"].items()) + [("mean", result["mean"])]
+    print_table(f"nerfedit eval: {args.pred} vs {args.gt}", ("image", "PSNR (dB)", "SSIM", "LPIPS"), [
+        (name, f"{m['psnr']:.2f}", f"{m['ssim']:.4f}", "—" if m["lpips"] is None else f"{m['lpips']:.4f}")
+        for name, m in rows])
+    if args.json_out is not None:
+        write_text(args.json_out, json.dumps(result, indent=2))
+
+
+COMMAND = Command("eval", EvalArgs, evaluate)

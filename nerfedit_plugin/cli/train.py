@@ -1,0 +1,39 @@
+"""``nerfedit train``: train a field backend (or build the mesh field) into a run folder."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from nerfedit_plugin.cli.common import Command, print_table, recorded
+from nerfedit_plugin.registry import FIELDS
+
+
+@dataclasses.dataclass
+class TrainArgs:
+    """Train a field backend on a dataset (or, for the mesh field, load a vertex-coloured mesh) into a run folder."""
+
+    data: Path
+    """Dataset folder or transforms JSON (Blender or nerfstudio); a mesh file for --field mesh."""
+    out: Path
+    """Run folder to write (field.pt, config.yml, log.json; mesh.ply for the mesh field)."""
+    field: str = "nerf"
+    """Field backend (entry point group nerfedit.fields; listed above, and by `nerfedit plugins`)."""
+    device: str | None = None
+    """torch device (default: cuda when present, else cpu)."""
+    overwrite: bool = False
+    """Replace an existing run folder (only after the new one is complete)."""
+
+
+def train(args: TrainArgs) -> None:
+    from nerfedit_plugin.io.run import train_run
+
+    run, log = train_run(args.field, args.field_options, args.data, args.out, overwrite=args.overwrite,
+                         device=args.device, record=recorded(args))
+    evals = log.get("eval") or []
+    print_table(f"nerfedit train → {run.path}", ("field", "steps", "seconds", "held-out PSNR"), [(
+        run.backend, log.get("steps", 0), f"{log.get('train_seconds', 0.0):.1f}",
+        f"{evals[-1][1]:.2f} dB" if evals else "—")])
+
+
+COMMAND = Command("train", TrainArgs, train, plugin=("field", FIELDS, "nerf"), records=True)
