@@ -24,9 +24,9 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from deformers.heat_weights import bone_heat_weights  # noqa: E402
+from deformers.skeleton.heat_weights import bone_heat_weights  # noqa: E402
 from deformers.skeleton import Skeleton  # noqa: E402
-from deformers.skinning import Binding, normalize_weights, skin  # noqa: E402
+from deformers.skeleton.skinning import Binding, normalize_weights, skin  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.io.samples import sample_mesh_path  # noqa: E402
 from timing import best_of  # noqa: E402

@@ -43,6 +43,23 @@ MOVED = {
 
 _PACKAGE = __name__.rsplit(".", 1)[0]
 
+MOVED_PLUGINS = {
+    "deformers.mean_value": "deformers.cage.mean_value",
+    "deformers.green": "deformers.cage.green",
+    "deformers.bvh": "deformers.skeleton.bvh",
+    "deformers.skinning": "deformers.skeleton.skinning",
+    "deformers.heat_weights": "deformers.skeleton.heat_weights",
+}
+"""Built-in deformer modules that moved into their plugin's folder (absolute names). ``deformers.cage`` and
+``deformers.skeleton`` are packages now that re-export what the modules held."""
+
+
+def _new_name(fullname: str) -> str | None:
+    prefix, _, name = fullname.rpartition(".")
+    if prefix == _PACKAGE and name in MOVED:
+        return f"{_PACKAGE}.{MOVED[name]}"
+    return MOVED_PLUGINS.get(fullname)
+
 
 class _AliasLoader(importlib.abc.Loader):
     def __init__(self, target: str) -> None:
@@ -56,13 +73,12 @@ class _AliasLoader(importlib.abc.Loader):
 
 
 class _AliasFinder(importlib.abc.MetaPathFinder):
-    """Resolves ``nerfedit_plugin.<old>`` to ``nerfedit_plugin.<new>`` for the names in :data:`MOVED`."""
+    """Resolves the old names of :data:`MOVED` and :data:`MOVED_PLUGINS` to their new modules."""
 
     def find_spec(self, fullname, path=None, target=None):
-        prefix, _, name = fullname.rpartition(".")
-        if prefix != _PACKAGE or name not in MOVED:
+        new = _new_name(fullname)
+        if new is None:
             return None
-        new = f"{_PACKAGE}.{MOVED[name]}"
         warnings.warn(f"{fullname} moved to {new}; the old path goes away in the next release",
                       DeprecationWarning, stacklevel=2)
         return importlib.util.spec_from_loader(fullname, _AliasLoader(new))

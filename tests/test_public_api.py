@@ -63,6 +63,8 @@ def test_optional_hooks_have_declared_defaults(capsule):
     ("nerfedit_plugin.deformation_field", "nerfedit_plugin.bending.deformation_field"),
     ("nerfedit_plugin.editspec", "nerfedit_plugin.edit.spec"),
     ("nerfedit_plugin.testing_fields", "nerfedit_plugin.testing.fields"),
+    ("deformers.skinning", "deformers.skeleton.skinning"),
+    ("deformers.mean_value", "deformers.cage.mean_value"),
 ])
 def test_old_module_paths_alias_with_a_warning(old, new):
     sys.modules.pop(old, None)

@@ -173,8 +173,8 @@ def _config_copy(source: Path, target: Path, new_target: str) -> Path:
 
 
 def test_usage_documents_every_moved_module():
-    from nerfedit_plugin._compat import MOVED
+    from nerfedit_plugin._compat import MOVED, MOVED_PLUGINS
 
     usage = (Path(__file__).parents[2] / "docs" / "usage.md").read_text().split("## Moved modules")[1]
     usage = " ".join(usage.split())
-    assert all(f"`{old}` → `{new}`" in usage for old, new in MOVED.items())
+    assert all(f"`{old}` → `{new}`" in usage for old, new in (*MOVED.items(), *MOVED_PLUGINS.items()))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from deformers.bvh import parse_bvh
+from deformers.skeleton.bvh import parse_bvh
 from deformers.skeleton import Skeleton
 from nerfedit_plugin.errors import NerfEditError
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from deformers.cage import CageConfig, CageDeformer, auto_cage, enclosure, validate_cage
-from deformers.mean_value import mean_value_coordinates
+from deformers.cage.mean_value import mean_value_coordinates
 from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from deformers.green import green_coordinates, green_deform, green_face_terms
+from deformers.cage.green import green_coordinates, green_deform, green_face_terms
 from test_mean_value import star_cage
 
 V, F = star_cage()

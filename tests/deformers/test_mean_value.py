@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformers.mean_value import mean_value_coordinates
+from deformers.cage.mean_value import mean_value_coordinates
 
 
 def star_cage() -> tuple[np.ndarray, np.ndarray]:

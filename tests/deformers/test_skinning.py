@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from deformers.skinning import Binding, dqs, dual_quaternions, lbs, normalize_weights, skin
+from deformers.skeleton.skinning import Binding, dqs, dual_quaternions, lbs, normalize_weights, skin
 
 RNG = np.random.default_rng(7)
 POINTS = RNG.uniform(-1, 1, (300, 3))

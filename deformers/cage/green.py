@@ -13,7 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .mean_value import CageGeometry
+from deformers.cage.mean_value import CageGeometry
 
 
 def _skew(e: np.ndarray) -> np.ndarray:

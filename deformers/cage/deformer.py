@@ -24,8 +24,8 @@ from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 
-from .green import green_coordinates, green_face_terms
-from .mean_value import mean_value_coordinates
+from deformers.cage.green import green_coordinates, green_face_terms
+from deformers.cage.mean_value import mean_value_coordinates
 
 NEAR_CAGE = 1e-4  # closer to the cage than this × its size: the exact winding number decides inside / outside
 

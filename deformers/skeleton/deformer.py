@@ -4,7 +4,7 @@ Spec: ``{"skeleton": "skeleton.json" | "walk.bvh", "pose": {"<joint>": {"rotate"
 "translate": [x,y,z]}}, "weights": "weights.npy", "frames": n}`` (``pose`` and ``weights`` optional). Each joint is
 one bone (segment head → tail); a pose rotates joints about their heads and composes down the hierarchy; a BVH
 without a pose plays its clip. Weights: ``weights.npy (V, joints)`` float, else bone heat
-(:mod:`deformers.heat_weights`). :meth:`SkeletonDeformer.deform_points` skins a point off the surface with the
+(:mod:`deformers.skeleton.heat_weights`). :meth:`SkeletonDeformer.deform_points` skins a point off the surface with the
 weights of its closest surface point. Skeleton JSON, BVH and pose rules: docs/architecture.md, "Edit spec".
 """
 
@@ -27,9 +27,9 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
-from .bvh import BvhClip, parse_bvh
-from .heat_weights import bone_heat_weights
-from .skinning import Binding, normalize_weights, skin
+from deformers.skeleton.bvh import BvhClip, parse_bvh
+from deformers.skeleton.heat_weights import bone_heat_weights
+from deformers.skeleton.skinning import Binding, normalize_weights, skin
 
 
 def closest_point_barycentrics(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
