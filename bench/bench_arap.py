@@ -22,8 +22,8 @@ import numpy as np
 import pymeshlab
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.edit.spec import load_edit_spec
+from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.tets import orient_tets
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,11 +83,14 @@ def bench_surface(quick: bool) -> float:
     handles, targets = load_edit_spec(ROOT / "configs" / "arap_bunny_head.json").handle_targets(vertices)
     targets = targets[-1]
 
-    solver, ours, precompute, ours_time = run_ours(vertices, faces, handles, targets, max_iterations=1000,
-                                                   tolerance=TOLERANCE)
+    solver, ours, precompute, ours_time = run_ours(
+        vertices, faces, handles, targets, max_iterations=1000, tolerance=TOLERANCE
+    )
     print(f"surface ARAP, bunny {len(vertices)} vertices / {len(faces)} faces, {len(handles)} handle vertices")
-    print(f"  ours:   precompute {precompute:.2f} s, {ours.iterations} iterations {ours_time - precompute:.2f} s, "
-          f"total {ours_time:.2f} s, energy {ours.energies[-1]:.9g} (converged={ours.converged})")
+    print(
+        f"  ours:   precompute {precompute:.2f} s, {ours.iterations} iterations {ours_time - precompute:.2f} s, "
+        f"total {ours_time:.2f} s, energy {ours.energies[-1]:.9g} (converged={ours.converged})"
+    )
 
     data, igl_setup = igl_precompute(vertices, faces, handles, igl.ARAP_ENERGY_TYPE_SPOKES_AND_RIMS, 10)
     current = vertices.copy()
@@ -107,8 +110,10 @@ def bench_surface(quick: bool) -> float:
             reason = "stopped decreasing"
             break
     difference = np.abs(current - ours.vertices).max() / scale
-    print(f"  libigl: precompute {igl_setup:.2f} s, {iterations} iterations {igl_time - igl_setup:.2f} s, "
-          f"total {igl_time:.2f} s, energy {energy:.9g} ({reason})")
+    print(
+        f"  libigl: precompute {igl_setup:.2f} s, {iterations} iterations {igl_time - igl_setup:.2f} s, "
+        f"total {igl_time:.2f} s, energy {energy:.9g} ({reason})"
+    )
     ratio = ours_time / igl_time
     print(f"  max vertex difference ours vs libigl: {difference:.2e} x bbox diagonal")
     print(f"  RATIO surface (ours / libigl, time to converged energy) = {ratio:.3f}  (target <= 0.5)")
@@ -125,11 +130,14 @@ def bench_tets(quick: bool) -> float:
     targets = np.concatenate([vertices[fixed], (vertices[moved] - centre) @ rot.T + centre + [0, 0.2, 0]])
     iterations = 10
 
-    solver, ours, precompute, ours_time = run_ours(vertices, tets, handles, targets, "elements",
-                                                   max_iterations=iterations, tolerance=0.0)
+    solver, ours, precompute, ours_time = run_ours(
+        vertices, tets, handles, targets, "elements", max_iterations=iterations, tolerance=0.0
+    )
     print(f"tet ARAP (ELEMENTS), pytetwild sphere {len(vertices)} vertices / {len(tets)} tets, {len(handles)} handles")
-    print(f"  ours:   precompute {precompute:.2f} s, {ours.iterations} iterations {ours_time - precompute:.2f} s, "
-          f"total {ours_time:.2f} s, energy {ours.energies[-1]:.9g}")
+    print(
+        f"  ours:   precompute {precompute:.2f} s, {ours.iterations} iterations {ours_time - precompute:.2f} s, "
+        f"total {ours_time:.2f} s, energy {ours.energies[-1]:.9g}"
+    )
 
     data, igl_setup = igl_precompute(vertices, tets, handles, igl.ARAP_ENERGY_TYPE_ELEMENTS, iterations)
     initial = vertices.copy()
@@ -137,8 +145,10 @@ def bench_tets(quick: bool) -> float:
     start = time.perf_counter()
     result = igl.arap_solve(targets, data, initial)
     igl_time = igl_setup + time.perf_counter() - start
-    print(f"  libigl: precompute {igl_setup:.2f} s, {iterations} iterations {igl_time - igl_setup:.2f} s, "
-          f"total {igl_time:.2f} s, energy {solver.energy(result):.9g}")
+    print(
+        f"  libigl: precompute {igl_setup:.2f} s, {iterations} iterations {igl_time - igl_setup:.2f} s, "
+        f"total {igl_time:.2f} s, energy {solver.energy(result):.9g}"
+    )
     ratio = ours_time / igl_time
     print(f"  RATIO tets (ours / libigl, precompute + {iterations} iterations) = {ratio:.3f}  (target <= 0.5)")
     return ratio

@@ -24,10 +24,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from timing import best_of  # noqa: E402
+
 from deformers.cage import CageConfig, CageDeformer, auto_cage, validate_cage  # noqa: E402
 from nerfedit_plugin.edit.spec import parse_edit_spec  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
-from timing import best_of  # noqa: E402
 
 TARGET_BIND_S = 1.0
 TARGET_POSE_MS = 20.0
@@ -46,7 +47,9 @@ def main() -> None:
         keep = 4096
         bunny = SurfaceMesh(bunny.vertices[:keep], bunny.faces[(bunny.faces < keep).all(1)])
     n, f = bunny.n_vertices, len(cage.faces)
-    print(f"bunny: {n} vertices; automatic cage: {cage.n_vertices} vertices / {f} faces (alpha wrap + checks {wrap_s:.2f} s)")
+    print(
+        f"bunny: {n} vertices; automatic cage: {cage.n_vertices} vertices / {f} faces (alpha wrap + checks {wrap_s:.2f} s)"
+    )
 
     grid = np.random.default_rng(0).uniform(0.5, 1.5, size=(2, f, n))
     anchor_s = best_of(lambda: np.arctan2(grid[0], grid[1]), repeat)
@@ -59,15 +62,19 @@ def main() -> None:
         bind_s = best_of(lambda: deformer.bind(bunny, spec), repeat)
         green = CageConfig(coordinates="green").setup()
         green_s = best_of(lambda: green.bind(bunny, spec), 1)
-    print(f"MVC bind:   {bind_s:.3f} s  = {bind_s / TARGET_BIND_S:.2f} × the {TARGET_BIND_S:.0f} s target"
-          f"  = {bind_s / anchor_s:.1f} × one arctan2 pass over {n}×{f} ({anchor_s * 1e3:.1f} ms)")
+    print(
+        f"MVC bind:   {bind_s:.3f} s  = {bind_s / TARGET_BIND_S:.2f} × the {TARGET_BIND_S:.0f} s target"
+        f"  = {bind_s / anchor_s:.1f} × one arctan2 pass over {n}×{f} ({anchor_s * 1e3:.1f} ms)"
+    )
     print(f"Green bind: {green_s:.3f} s  = {green_s / anchor_s:.1f} × the arctan2 pass")
 
     weights = np.random.default_rng(1).random((cage.n_vertices, n))  # same shape as the bound (C, V) weights
     pose_s = best_of(deformer.deform, 10 * repeat)
     floor_s = best_of(weights.sum, 10 * repeat)
-    print(f"pose:       {pose_s * 1e3:.2f} ms = {pose_s * 1e3 / TARGET_POSE_MS:.2f} × the {TARGET_POSE_MS:.0f} ms target"
-          f"  = {pose_s / floor_s:.1f} × one read pass over the {weights.nbytes / 1e6:.0f} MB weights ({floor_s * 1e3:.2f} ms)")
+    print(
+        f"pose:       {pose_s * 1e3:.2f} ms = {pose_s * 1e3 / TARGET_POSE_MS:.2f} × the {TARGET_POSE_MS:.0f} ms target"
+        f"  = {pose_s / floor_s:.1f} × one read pass over the {weights.nbytes / 1e6:.0f} MB weights ({floor_s * 1e3:.2f} ms)"
+    )
 
 
 if __name__ == "__main__":

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from timing import best_of
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.locate import TetLocator, locate_brute_force
 from nerfedit_plugin.geometry.tets import orient_tets
 from nerfedit_plugin.io.samples import sample_mesh_path
-from timing import best_of
 
 CACHE = Path("/tmp/nerfedit_bench_locate")
 
@@ -49,7 +49,8 @@ def tet_mesh(name: str) -> tuple[np.ndarray, np.ndarray]:
         sphere = trimesh.creation.icosphere(subdivisions=3)
         vertices, faces, fac = sphere.vertices, sphere.faces, 0.085
     vertices, tets = pytetwild.tetrahedralize(
-        vertices, faces.astype(np.int32), edge_length_fac=fac, optimize=True, epsilon=5e-3, quiet=True)
+        vertices, faces.astype(np.int32), edge_length_fac=fac, optimize=True, epsilon=5e-3, quiet=True
+    )
     vertices = np.asarray(vertices, dtype=np.float64)
     tets = orient_tets(vertices, tets)
     CACHE.mkdir(exist_ok=True)
@@ -89,11 +90,15 @@ def bench_mesh(name: str, n_points: int, repeats: int, check: int) -> None:
     ours_torch = best_of(lambda: vectorised.locate(torch_points), repeats, warmup=True)
 
     print(f"VTK find_containing_cell   {n_points / vtk / 1e6:7.2f} M points/s  ({vtk:.3f} s)")
-    print(f"TetLocator ({threads} threads)     {n_points / ours / 1e6:7.2f} M points/s  ({ours:.3f} s)  "
-          f"build {build:.2f} s, grid {locator.grid_shape}, {locator.n_entries / len(tets):.1f} entries/tet")
+    print(
+        f"TetLocator ({threads} threads)     {n_points / ours / 1e6:7.2f} M points/s  ({ours:.3f} s)  "
+        f"build {build:.2f} s, grid {locator.grid_shape}, {locator.n_entries / len(tets):.1f} entries/tet"
+    )
     print(f"TetLocator (1 thread)      {n_points / ours_1 / 1e6:7.2f} M points/s  ({ours_1:.3f} s)")
-    print(f"TetLocator kernel='torch' {n_points / ours_torch / 1e6:7.2f} M points/s  ({ours_torch:.3f} s, "
-          f"{threads} threads; the vectorised walk CUDA runs)")
+    print(
+        f"TetLocator kernel='torch' {n_points / ours_torch / 1e6:7.2f} M points/s  ({ours_torch:.3f} s, "
+        f"{threads} threads; the vectorised walk CUDA runs)"
+    )
     print(f"ratio vs VTK: {vtk / ours:.1f}x ({threads} threads), {vtk / ours_1:.1f}x (1 thread)")
     inside = ids.numpy() >= 0
     print(f"inside {inside.mean():.1%}; inside/outside agreement with VTK {np.mean(inside == (vtk_ids >= 0)):.4%}")
@@ -119,8 +124,10 @@ def bench_to_canonical(name: str, n_points: int, repeats: int) -> None:
     seconds = best_of(lambda: field.to_canonical(points), repeats, warmup=True)
     out = field.to_canonical(points)
     print(f"\n== DeformationField.to_canonical (twisted {name} proxy, {n_points / 1e6:g}M points)")
-    print(f"{n_points / seconds / 1e6:.2f} M points/s ({seconds:.3f} s); locators built in {build:.2f} s; "
-          f"mapped {out.inside.double().mean():.1%}, empty {out.empty.double().mean():.1%}")
+    print(
+        f"{n_points / seconds / 1e6:.2f} M points/s ({seconds:.3f} s); locators built in {build:.2f} s; "
+        f"mapped {out.inside.double().mean():.1%}, empty {out.empty.double().mean():.1%}"
+    )
 
 
 def main() -> None:

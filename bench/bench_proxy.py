@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.edit.proxy import ProxyConfig, build_proxy, tetrahedralize
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 from nerfedit_plugin.io.samples import sample_mesh_path
 
@@ -33,7 +33,7 @@ def main() -> None:
     mode.add_argument("--full", action="store_true", help="also raw pytetwild on the undecimated bunny (minutes)")
     args = parser.parse_args()
 
-    import open3d, pymeshlab, pytetwild, torch  # noqa: F401,E401  one-time imports stay out of the timings
+    import open3d  # noqa: F401,E401  one-time imports stay out of the timings
 
     config = ProxyConfig()
     names = ["cow"] if args.quick else ["bunny", "cow", "airplane"]

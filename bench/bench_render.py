@@ -36,19 +36,20 @@ import trimesh
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nerfedit_plugin.data.cameras import Cameras, look_at  # noqa: E402
+from timing import timed  # noqa: E402
+
 from nerfedit_plugin.bending.deformation_field import DeformationField  # noqa: E402
+from nerfedit_plugin.data.cameras import Cameras, look_at  # noqa: E402
+from nerfedit_plugin.data.synthetic import bend, colorize, render_mesh  # noqa: E402
+from nerfedit_plugin.edit.lift import Lift  # noqa: E402
+from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy  # noqa: E402
 from nerfedit_plugin.fields.mesh_field import MeshField  # noqa: E402
-from nerfedit_plugin.geometry import raycast  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField  # noqa: E402
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField  # noqa: E402
-from nerfedit_plugin.edit.lift import Lift  # noqa: E402
-from nerfedit_plugin.training.metrics import psnr, ssim  # noqa: E402
+from nerfedit_plugin.geometry import raycast  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
-from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy  # noqa: E402
 from nerfedit_plugin.render.renderer import RenderConfig, render_image  # noqa: E402
-from nerfedit_plugin.data.synthetic import bend, colorize, render_mesh  # noqa: E402
-from timing import timed  # noqa: E402
+from nerfedit_plugin.training.metrics import psnr, ssim  # noqa: E402
 
 TARGET_PSNR = 35.0
 TARGET_RATIO = 1.25
@@ -118,8 +119,10 @@ def main() -> None:
     print(f"torch threads: {torch.get_num_threads()}, {size}×{size}, supersample {supersample}, {n_cams} camera(s)")
 
     seconds, (mesh, proxy) = timed(scene)
-    print(f"mesh {len(mesh.vertices)} vertices, proxy {len(proxy.vertices)} vertices / {len(proxy.tets)} tets "
-          f"({seconds:.1f} s incl. cache)")
+    print(
+        f"mesh {len(mesh.vertices)} vertices, proxy {len(proxy.vertices)} vertices / {len(proxy.tets)} tets "
+        f"({seconds:.1f} s incl. cache)"
+    )
     bent = bend(mesh.vertices, radius=1.0)
     eyes = torch.tensor([[0.0, -3.5, 0.3], [2.5, -2.5, 1.0]])[:n_cams]
     cams = Cameras.from_fov(look_at(eyes, torch.tensor([0.3, 0.0, 0.0]).expand(n_cams, 3)), size, size, 0.75)
@@ -142,20 +145,28 @@ def main() -> None:
     deformation = DeformationField(proxy.vertices, proxy.tets, lifted["tet-arap"])  # fresh: time its builds
     seconds, _ = timed(lambda: deformation.to_canonical(torch.zeros(1, 3), 0))
     print(f"   one-time point-locator builds (rest proxy + frame 0): {seconds:.2f} s")
-    subjects = (("mesh", field), ("dense grid", grid_field(mesh, box.float())), ("sdf grid", sdf_field(mesh, box.float())))
+    subjects = (
+        ("mesh", field),
+        ("dense grid", grid_field(mesh, box.float())),
+        ("sdf grid", sdf_field(mesh, box.float())),
+    )
     for name, subject in subjects:
         times: dict[str, list[tuple[float, float]]] = {"unedited": [], "edited": []}
         for repeat in range(args.repeats + 1):  # interleaved rounds, the first is a warm-up
             for key, bending in (("unedited", None), ("edited", deformation)):
-                seconds = clocked(lambda: render_image(subject, cams, 0, config, deformation=bending,
-                                                       supersample=supersample))
+                seconds = clocked(
+                    lambda: render_image(subject, cams, 0, config, deformation=bending, supersample=supersample)
+                )
                 times[key] += [seconds] if repeat else []
         for clock, column in (("wall", 0), ("cpu", 1)):
             unedited, edited = (statistics.median(t[column] for t in times[key]) for key in ("unedited", "edited"))
             paired = statistics.median(e[column] / u[column] for u, e in zip(times["unedited"], times["edited"]))
             best = min(t[column] for t in times["edited"]) / min(t[column] for t in times["unedited"])
-            print(f"   {name:10s} {clock:4s} unedited {unedited:6.3f} s  edited {edited:6.3f} s (medians)  "
-                  f"ratio {paired:4.2f}× (of bests {best:4.2f}×; target ≤ {TARGET_RATIO}×)")
+            print(
+                f"   {name:10s} {clock:4s} unedited {unedited:6.3f} s  edited {edited:6.3f} s (medians)  "
+                f"ratio {paired:4.2f}× (of bests {best:4.2f}×; target ≤ {TARGET_RATIO}×)"
+            )
+
 
 if __name__ == "__main__":
     main()

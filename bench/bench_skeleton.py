@@ -24,12 +24,13 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from deformers.skeleton.heat_weights import bone_heat_weights  # noqa: E402
+from timing import best_of  # noqa: E402
+
 from deformers.skeleton import Skeleton  # noqa: E402
+from deformers.skeleton.heat_weights import bone_heat_weights  # noqa: E402
 from deformers.skeleton.skinning import Binding, normalize_weights, skin  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.io.samples import sample_mesh_path  # noqa: E402
-from timing import best_of  # noqa: E402
 
 TARGET_WEIGHTS_S = 2.0
 TARGET_POSE_MS = 20.0
@@ -65,10 +66,14 @@ def main() -> None:
     t_heat = best_of(lambda: bone_heat_weights(v, f, skeleton.heads, skeleton.tails), heat_reps)
     t_heat_blind = best_of(lambda: bone_heat_weights(v, f, skeleton.heads, skeleton.tails, visibility=False), heat_reps)
     t_anchor = best_of(lambda: anchor_heat(v, f, n_bones), heat_reps)
-    print(f"heat weights, visibility on : {t_heat:7.3f} s   = {t_heat / TARGET_WEIGHTS_S:5.2f} x target "
-          f"({TARGET_WEIGHTS_S:g} s), {t_heat / t_anchor:5.2f} x anchor")
-    print(f"heat weights, visibility off: {t_heat_blind:7.3f} s   = {t_heat_blind / TARGET_WEIGHTS_S:5.2f} x target, "
-          f"{t_heat_blind / t_anchor:5.2f} x anchor")
+    print(
+        f"heat weights, visibility on : {t_heat:7.3f} s   = {t_heat / TARGET_WEIGHTS_S:5.2f} x target "
+        f"({TARGET_WEIGHTS_S:g} s), {t_heat / t_anchor:5.2f} x anchor"
+    )
+    print(
+        f"heat weights, visibility off: {t_heat_blind:7.3f} s   = {t_heat_blind / TARGET_WEIGHTS_S:5.2f} x target, "
+        f"{t_heat_blind / t_anchor:5.2f} x anchor"
+    )
     print(f"  anchor (igl cotmatrix + massmatrix + cholespy factor + {n_bones}-column solve): {t_anchor:7.3f} s")
 
     weights = normalize_weights(weights, 1e-3)
@@ -91,10 +96,14 @@ def main() -> None:
     t_anchor_pose = best_of(lambda: lbs_m @ stacks[state["i"] % pose_reps], pose_reps)
     for method in ("dqs", "lbs"):
         t = best_of(lambda: new_pose(method), pose_reps)
-        print(f"new pose {method.upper()} (FK + skinning): {1e3 * t:7.2f} ms = {1e3 * t / TARGET_POSE_MS:5.2f} x target "
-              f"({TARGET_POSE_MS:g} ms), {t / t_anchor_pose:5.2f} x anchor")
-    print(f"  anchor (one igl.lbs_matrix M @ T per pose): {1e3 * t_anchor_pose:7.2f} ms "
-          f"(building M once: {1e3 * t_lbs_matrix:.1f} ms)")
+        print(
+            f"new pose {method.upper()} (FK + skinning): {1e3 * t:7.2f} ms = {1e3 * t / TARGET_POSE_MS:5.2f} x target "
+            f"({TARGET_POSE_MS:g} ms), {t / t_anchor_pose:5.2f} x anchor"
+        )
+    print(
+        f"  anchor (one igl.lbs_matrix M @ T per pose): {1e3 * t_anchor_pose:7.2f} ms "
+        f"(building M once: {1e3 * t_lbs_matrix:.1f} ms)"
+    )
 
 
 if __name__ == "__main__":

@@ -13,10 +13,10 @@ from typing import Literal
 
 import numpy as np
 
-from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 

@@ -79,8 +79,9 @@ class _AliasFinder(importlib.abc.MetaPathFinder):
         new = _new_name(fullname)
         if new is None:
             return None
-        warnings.warn(f"{fullname} moved to {new}; the old path goes away in the next release",
-                      DeprecationWarning, stacklevel=2)
+        warnings.warn(
+            f"{fullname} moved to {new}; the old path goes away in the next release", DeprecationWarning, stacklevel=2
+        )
         return importlib.util.spec_from_loader(fullname, _AliasLoader(new))
 
 

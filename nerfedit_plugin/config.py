@@ -87,11 +87,22 @@ def from_plain(cls: type, plain: dict, *, missing: Any = dataclasses.MISSING) ->
         hints = typing.get_type_hints(cls, include_extras=True)
     except Exception:  # unresolvable forward references (e.g. classes local to a test function)
         hints = {}
-    kwargs = {f.name: _value_from_plain(hints.get(f.name, Any), plain[f.name])
-              for f in dataclasses.fields(cls) if f.init and f.name != "_target" and f.name in plain}
+    kwargs = {
+        f.name: _value_from_plain(hints.get(f.name, Any), plain[f.name])
+        for f in dataclasses.fields(cls)
+        if f.init and f.name != "_target" and f.name in plain
+    }
     if missing is not dataclasses.MISSING:
-        kwargs.update({f.name: missing for f in dataclasses.fields(cls) if f.init and f.name not in kwargs
-                       and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING})
+        kwargs.update(
+            {
+                f.name: missing
+                for f in dataclasses.fields(cls)
+                if f.init
+                and f.name not in kwargs
+                and f.default is dataclasses.MISSING
+                and f.default_factory is dataclasses.MISSING
+            }
+        )
     return cls(**kwargs)
 
 

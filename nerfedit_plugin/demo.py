@@ -15,25 +15,26 @@ import dataclasses
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 import numpy as np
 import torch
 
-from nerfedit_plugin.config import write_config
-from nerfedit_plugin.io.atomic import atomic_dir
-from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.bending.deformation_field import DeformationField
-from nerfedit_plugin.edit.job import run_edit
-from nerfedit_plugin.training.metrics import evaluate_folders
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover
-from nerfedit_plugin.io.run import extract_mesh, train_run
+from nerfedit_plugin.config import write_config
+from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset, render_ground_truth
+from nerfedit_plugin.edit.job import run_edit
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.atomic import atomic_dir
+from nerfedit_plugin.io.run import extract_mesh, train_run
+from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover
 from nerfedit_plugin.render.views import default_render_config, render_views, turntable_cameras, write_gif, write_images
 from nerfedit_plugin.timing import Stopwatch
+from nerfedit_plugin.training.metrics import evaluate_folders
 
 
 @dataclass(frozen=True)
@@ -50,11 +51,24 @@ class Preset:
 
 
 PRESETS = {
-    "fast": Preset(resolution=100, n_train=50, n_test=4, train_seconds=150.0, train_steps=1_000_000,
-                   mesh_resolution=128,
-                   turntable_frames=16),
-    "tiny": Preset(resolution=32, n_train=10, n_test=2, train_seconds=600.0, train_steps=150, mesh_resolution=48,
-                   turntable_frames=4),
+    "fast": Preset(
+        resolution=100,
+        n_train=50,
+        n_test=4,
+        train_seconds=150.0,
+        train_steps=1_000_000,
+        mesh_resolution=128,
+        turntable_frames=16,
+    ),
+    "tiny": Preset(
+        resolution=32,
+        n_train=10,
+        n_test=2,
+        train_seconds=600.0,
+        train_steps=150,
+        mesh_resolution=48,
+        turntable_frames=4,
+    ),
 }
 
 
@@ -68,11 +82,15 @@ def nod_edit(mesh: SurfaceMesh, degrees: float = -25.0) -> dict:
     z = lambda f: float(low[2] + f * (high[2] - low[2]))  # noqa: E731
     lo, hi = (low - pad).tolist(), (high + pad).tolist()
     center = [float((low[0] + high[0]) / 2), float((low[1] + high[1]) / 2), z(0.6)]
-    return {"handles": [
-        {"select": {"box": {"min": lo, "max": hi[:2] + [z(0.4)]}}, "fixed": True},
-        {"select": {"box": {"min": lo[:2] + [z(0.7)], "max": hi}},
-         "transform": {"rotate": {"axis": [1.0, 0.0, 0.0], "degrees": degrees, "center": center}}},
-    ]}
+    return {
+        "handles": [
+            {"select": {"box": {"min": lo, "max": hi[:2] + [z(0.4)]}}, "fixed": True},
+            {
+                "select": {"box": {"min": lo[:2] + [z(0.7)], "max": hi}},
+                "transform": {"rotate": {"axis": [1.0, 0.0, 0.0], "degrees": degrees, "center": center}},
+            },
+        ]
+    }
 
 
 def run_demo(
@@ -95,15 +113,24 @@ def run_demo(
     start = time.perf_counter()
     with atomic_dir(out, overwrite) as stage:
         with clock.stage("generate"):
-            data = generate_dataset(GenerateConfig(
-                out=stage / "data", mesh="sample:bunny", resolution=sizes.resolution, n_train=sizes.n_train,
-                n_val=1, n_test=sizes.n_test, supersample=2 if preset == "fast" else 1))
+            data = generate_dataset(
+                GenerateConfig(
+                    out=stage / "data",
+                    mesh="sample:bunny",
+                    resolution=sizes.resolution,
+                    n_train=sizes.n_train,
+                    n_val=1,
+                    n_test=sizes.n_test,
+                    supersample=2 if preset == "fast" else 1,
+                )
+            )
         with clock.stage("train"):
             config_class = registry.config_class(FIELDS, field)
             config = config_class.tiny() if preset == "tiny" else config_class()
             if preset == "fast":
-                config.train = dataclasses.replace(config.train, max_seconds=sizes.train_seconds,
-                                                   eval_every_seconds=0, progress=progress)
+                config.train = dataclasses.replace(
+                    config.train, max_seconds=sizes.train_seconds, eval_every_seconds=0, progress=progress
+                )
             run, _ = train_run(field, config, data, stage / "run", registry=registry)
         with clock.stage("extract"):
             extract_mesh(run, sizes.mesh_resolution)
@@ -112,8 +139,15 @@ def run_demo(
             spec = stage / "nod.json"
             spec.write_text(json.dumps(nod_edit(mesh), indent=2))
             arap = registry.config_class(DEFORMERS, "arap")()
-            edited = run_edit(mesh, arap, spec, stage / "edit", camera_distance=run.camera_distance(),
-                              cache_dir=cache_dir or stage / "cache", record={"deformer": "arap", "edit": str(spec)})
+            edited = run_edit(
+                mesh,
+                arap,
+                spec,
+                stage / "edit",
+                camera_distance=run.camera_distance(),
+                cache_dir=cache_dir or stage / "cache",
+                record={"deformer": "arap", "edit": str(spec)},
+            )
         with clock.stage("render"):
             trained = run.field()
             deformation = DeformationField.load(edited.out / "deformation.npz")
@@ -125,25 +159,38 @@ def run_demo(
             write_images(before, names, stage / "renders" / "before")
             write_images(after, names, stage / "renders" / "after")
             turntable = turntable_cameras(trained.scene_bbox, sizes.turntable_frames, sizes.resolution)
-            write_gif(stage / "renders" / "turntable.gif",
-                      render_views(trained, turntable, render, deformation=deformation, progress=progress))
-            forward = DeformationField(deformation.deformed_vertices[0], deformation.tets, deformation.rest_vertices,
-                                       dtype=torch.float64)  # rest ↔ deformed swapped: maps T to T'
+            write_gif(
+                stage / "renders" / "turntable.gif",
+                render_views(trained, turntable, render, deformation=deformation, progress=progress),
+            )
+            forward = DeformationField(
+                deformation.deformed_vertices[0], deformation.tets, deformation.rest_vertices, dtype=torch.float64
+            )  # rest ↔ deformed swapped: maps T to T'
             source = SurfaceMesh.load(data / "mesh.ply")
             moved = forward.to_canonical(torch.from_numpy(source.vertices)).points.numpy()
             render_ground_truth(source, moved, data / "transforms_test.json", stage / "renders" / "after_ground_truth")
         before = evaluate_folders(stage / "renders" / "before", data / "test", test.background)["mean"]
-        after = evaluate_folders(stage / "renders" / "after", stage / "renders" / "after_ground_truth",
-                                 test.background)["mean"]
+        after = evaluate_folders(
+            stage / "renders" / "after", stage / "renders" / "after_ground_truth", test.background
+        )["mean"]
         summary = {
             "out": str(Path(out).resolve()),
             "seconds": {**clock.seconds, "total": round(time.perf_counter() - start, 2)},
-            "before": before, "after": after,
+            "before": before,
+            "after": after,
             "edit": {k: edited.report[k] for k in ("proxy", "per_frame")},
-            "files": {"dataset": "data", "run": "run", "mesh": "run/mesh.ply", "edit": "edit",
-                      "deformed mesh": "edit/deformed_mesh.ply", "deformation": "edit/deformation.npz",
-                      "before": "renders/before", "after": "renders/after",
-                      "after, ground truth": "renders/after_ground_truth", "turntable": "renders/turntable.gif"},
+            "files": {
+                "dataset": "data",
+                "run": "run",
+                "mesh": "run/mesh.ply",
+                "edit": "edit",
+                "deformed mesh": "edit/deformed_mesh.ply",
+                "deformation": "edit/deformation.npz",
+                "before": "renders/before",
+                "after": "renders/after",
+                "after, ground truth": "renders/after_ground_truth",
+                "turntable": "renders/turntable.gif",
+            },
         }
         (stage / "summary.json").write_text(json.dumps(summary, indent=2))
         if record is not None:

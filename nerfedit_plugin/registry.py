@@ -9,10 +9,9 @@ import path, as entry points name plugins, so it depends on no stage (the contra
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass, field
 from importlib import metadata
-
-import importlib
 
 from nerfedit_plugin.errors import NerfEditError
 
@@ -67,7 +66,9 @@ class Registry:
         why = next((s.reason for s in self.skipped if s.group == group and s.name == name), None)
         if why:
             raise NerfEditError(f"plugin {name!r} ({group}) is installed but broken: {why}")
-        raise NerfEditError(f"unknown {group.split('.')[-1][:-1]} {name!r} (available: {', '.join(sorted(found)) or 'none'})")
+        raise NerfEditError(
+            f"unknown {group.split('.')[-1][:-1]} {name!r} (available: {', '.join(sorted(found)) or 'none'})"
+        )
 
 
 def _check_shape(obj: object, base_config: type, base_target: type) -> str | None:

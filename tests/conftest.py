@@ -34,6 +34,7 @@ def tiny_scene(tmp_path_factory):
     from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 
     out = tmp_path_factory.mktemp("tiny-scene") / "cow"
-    generate_dataset(GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2,
-                                    supersample=1))
+    generate_dataset(
+        GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2, supersample=1)
+    )
     return out

@@ -25,7 +25,8 @@ def _module_name(path: Path) -> str:
 def _is_type_checking(node: ast.If) -> bool:
     test = node.test
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
 
 
 def _imports(tree: ast.AST, module: str, is_package: bool) -> set[str]:
@@ -78,7 +79,7 @@ def test_no_import_cycles():
         stack.append(node)
         for nxt in sorted(graph[node]):
             if state.get(nxt) == 1:
-                cycle = stack[stack.index(nxt):] + [nxt]
+                cycle = stack[stack.index(nxt) :] + [nxt]
                 pytest.fail("import cycle: " + " -> ".join(cycle))
             if nxt not in state:
                 walk(nxt)
@@ -97,7 +98,9 @@ def test_core_never_imports_plugins():
         if not module.startswith(PACKAGE) or _in(module, MAY_USE_PLUGINS):
             continue
         for dep in deps:
-            backend = _in(dep, FIELD_BACKENDS) and dep != "nerfedit_plugin.fields.base" and dep != "nerfedit_plugin.fields"
+            backend = (
+                _in(dep, FIELD_BACKENDS) and dep != "nerfedit_plugin.fields.base" and dep != "nerfedit_plugin.fields"
+            )
             if _in(dep, PLUGINS) or backend:
                 wrong.append(f"{module} imports {dep}")
     assert not wrong, "wrong-way imports:\n" + "\n".join(sorted(wrong))
@@ -105,14 +108,21 @@ def test_core_never_imports_plugins():
 
 def test_plugins_use_only_the_core():
     """Built-in deformers import the core and their own modules, like a third party would (no private kernels)."""
-    wrong = [f"{m} imports {d}" for m, deps in import_graph().items() if _in(m, PLUGINS)
-             for d in deps if any(part.startswith("_") for part in d.split(".")[1:] if part != "__init__")]
+    wrong = [
+        f"{m} imports {d}"
+        for m, deps in import_graph().items()
+        if _in(m, PLUGINS)
+        for d in deps
+        if any(part.startswith("_") for part in d.split(".")[1:] if part != "__init__")
+    ]
     assert not wrong, "\n".join(sorted(wrong))
 
 
 def test_the_checker_sees_lazy_imports_and_cycles(tmp_path):
     """The walker is not blind: a function-level import counts, a TYPE_CHECKING one does not."""
-    tree = ast.parse("import os\ndef f():\n    from nerfedit_plugin.io import run\n"
-                     "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from nerfedit_plugin import cli\n")
+    tree = ast.parse(
+        "import os\ndef f():\n    from nerfedit_plugin.io import run\n"
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from nerfedit_plugin import cli\n"
+    )
     names = _imports(tree, "nerfedit_plugin.x", False)
     assert "nerfedit_plugin.io.run" in names and "nerfedit_plugin.cli" not in names

@@ -13,8 +13,10 @@ from nerfedit_plugin import Deformer, DeformerConfig, Field, SurfaceMesh
 
 def test_import_is_cheap():
     """``import nerfedit_plugin`` loads none of the heavy libraries; the first use of a name does."""
-    code = ("import sys, nerfedit_plugin; heavy = {'torch', 'open3d', 'numba', 'pytetwild', 'pymeshlab', 'scipy'};"
-            "print(sorted(heavy & set(sys.modules)))")
+    code = (
+        "import sys, nerfedit_plugin; heavy = {'torch', 'open3d', 'numba', 'pytetwild', 'pymeshlab', 'scipy'};"
+        "print(sorted(heavy & set(sys.modules)))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]", out
 
@@ -59,13 +61,16 @@ def test_optional_hooks_have_declared_defaults(capsule):
     assert Minimal.identity_edit({}, capsule) is None and Minimal.rigid_edit({}, capsule) is None
 
 
-@pytest.mark.parametrize("old, new", [
-    ("nerfedit_plugin.deformation_field", "nerfedit_plugin.bending.deformation_field"),
-    ("nerfedit_plugin.editspec", "nerfedit_plugin.edit.spec"),
-    ("nerfedit_plugin.testing_fields", "nerfedit_plugin.testing.fields"),
-    ("deformers.skinning", "deformers.skeleton.skinning"),
-    ("deformers.mean_value", "deformers.cage.mean_value"),
-])
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        ("nerfedit_plugin.deformation_field", "nerfedit_plugin.bending.deformation_field"),
+        ("nerfedit_plugin.editspec", "nerfedit_plugin.edit.spec"),
+        ("nerfedit_plugin.testing_fields", "nerfedit_plugin.testing.fields"),
+        ("deformers.skinning", "deformers.skeleton.skinning"),
+        ("deformers.mean_value", "deformers.cage.mean_value"),
+    ],
+)
 def test_old_module_paths_alias_with_a_warning(old, new):
     sys.modules.pop(old, None)
     with warnings.catch_warnings(record=True) as caught:

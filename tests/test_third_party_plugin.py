@@ -21,8 +21,23 @@ def twist_site(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("third_party")
     source, site = root / "source", root / "site"
     shutil.copytree(TWIST, source, ignore=shutil.ignore_patterns("tests", "build", "*.egg-info", "__pycache__"))
-    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--no-index",
-                    "--quiet", "--target", str(site), str(source)], check=True, capture_output=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "--quiet",
+            "--target",
+            str(site),
+            str(source),
+        ],
+        check=True,
+        capture_output=True,
+    )
     return site
 
 
@@ -51,8 +66,12 @@ def test_installed_plugin_is_discovered_and_conforms(twist_site, on_path):
     assert (plugin.distribution, plugin.target) == ("nerfedit-twist", "nerfedit_twist:TwistConfig")
     config = registry.config_class(DEFORMERS, "twist")()
     assert Path(sys.modules["nerfedit_twist"].__file__).parent == twist_site  # the installed copy, not the docs'
-    check_deformer(config, edit={"twist": {"axis": [0, 0, 1], "degrees": 90}, "frames": 2},
-                   identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}}, skip=("rigid",))
+    check_deformer(
+        config,
+        edit={"twist": {"axis": [0, 0, 1], "degrees": 90}, "frames": 2},
+        identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}},
+        skip=("rigid",),
+    )
 
 
 def _fake_distribution(folder: Path, name: str, entry_points: str, module: str | None = None) -> None:
@@ -67,15 +86,19 @@ def _fake_distribution(folder: Path, name: str, entry_points: str, module: str |
 
 def test_broken_entry_points_are_skipped_with_a_reason(tmp_path, on_path):
     _fake_distribution(tmp_path, "nerfedit-wrong-import", "ghost = nerfedit_no_such_module:GhostConfig")
-    _fake_distribution(tmp_path, "nerfedit-wrong-type", "number = nerfedit_wrong_type:NOT_A_CONFIG\n"
-                       "plain = nerfedit_wrong_type:PlainConfig", module="""
+    _fake_distribution(
+        tmp_path,
+        "nerfedit-wrong-type",
+        "number = nerfedit_wrong_type:NOT_A_CONFIG\nplain = nerfedit_wrong_type:PlainConfig",
+        module="""
         import dataclasses
         NOT_A_CONFIG = 42
 
         @dataclasses.dataclass
         class PlainConfig:
             size: int = 1
-        """)
+        """,
+    )
     on_path(tmp_path)
     registry = discover()
     reasons = {s.name: s.reason for s in registry.skipped}

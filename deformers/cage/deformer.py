@@ -17,15 +17,14 @@ from typing import Literal
 import numpy as np
 import tyro
 
+from deformers.cage.green import green_coordinates, green_face_terms
+from deformers.cage.mean_value import mean_value_coordinates
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry import raycast
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
-
-from deformers.cage.green import green_coordinates, green_face_terms
-from deformers.cage.mean_value import mean_value_coordinates
 
 NEAR_CAGE = 1e-4  # closer to the cage than this × its size: the exact winding number decides inside / outside
 
@@ -66,17 +65,23 @@ def validate_cage(cage: SurfaceMesh, label: str) -> SurfaceMesh:
     v = cage.vertices
     area2 = np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
     if np.any(area2 <= 1e-12 * cage.bbox_diagonal**2):
-        raise NerfEditError(f"{label}: {np.count_nonzero(area2 <= 1e-12 * cage.bbox_diagonal**2)} triangles have zero area")
+        raise NerfEditError(
+            f"{label}: {np.count_nonzero(area2 <= 1e-12 * cage.bbox_diagonal**2)} triangles have zero area"
+        )
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     keys, counts = np.unique(directed[:, 0] * len(v) + directed[:, 1], return_counts=True)
     if np.any(counts > 1):
-        raise NerfEditError(f"{label}: not consistently oriented or not manifold ({np.count_nonzero(counts > 1)} edges are "
-                            "traversed twice in the same direction); recompute normals consistently "
-                            "(Blender: Recalculate Outside)")
+        raise NerfEditError(
+            f"{label}: not consistently oriented or not manifold ({np.count_nonzero(counts > 1)} edges are "
+            "traversed twice in the same direction); recompute normals consistently "
+            "(Blender: Recalculate Outside)"
+        )
     boundary = ~np.isin(directed[:, 1] * len(v) + directed[:, 0], keys)
     if np.any(boundary):
-        raise NerfEditError(f"{label}: not closed ({np.count_nonzero(boundary)} boundary edges); a cage must be watertight "
-                            "(merge duplicate vertices — Blender: Merge by Distance — and fill holes)")
+        raise NerfEditError(
+            f"{label}: not closed ({np.count_nonzero(boundary)} boundary edges); a cage must be watertight "
+            "(merge duplicate vertices — Blender: Merge by Distance — and fill holes)"
+        )
     volume = np.einsum("fi,fi->f", v[faces[:, 0]], np.cross(v[faces[:, 1]], v[faces[:, 2]])).sum() / 6.0
     return cage if volume > 0 else SurfaceMesh(v, faces[:, ::-1].copy())
 
@@ -114,9 +119,12 @@ class CageDeformer(Deformer):
 
     def __init__(self, config: CageConfig) -> None:
         super().__init__(config)
-        rules = {"auto_alpha": (config.auto_alpha > 0, "> 0"), "auto_offset": (config.auto_offset > 0, "> 0"),
-                 "auto_max_vertices": (config.auto_max_vertices >= 4, ">= 4"),
-                 "chunk_size": (config.chunk_size >= 1, ">= 1")}
+        rules = {
+            "auto_alpha": (config.auto_alpha > 0, "> 0"),
+            "auto_offset": (config.auto_offset > 0, "> 0"),
+            "auto_max_vertices": (config.auto_max_vertices >= 4, ">= 4"),
+            "chunk_size": (config.chunk_size >= 1, ">= 1"),
+        }
         for name, (ok, rule) in rules.items():
             if not ok:
                 raise NerfEditError(f"cage deformer: {name} must be {rule}, got {getattr(config, name)}")
@@ -129,7 +137,7 @@ class CageDeformer(Deformer):
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
         cage_value = edit.extra.get("cage", "auto")
         if not isinstance(cage_value, str):
-            raise NerfEditError(f"{edit.source}: cage: expected \"auto\" or a mesh file, got {cage_value!r}")
+            raise NerfEditError(f'{edit.source}: cage: expected "auto" or a mesh file, got {cage_value!r}')
         has_target, has_handles = "deformed_cage" in edit.extra, bool(edit.handles)
         if has_target and has_handles:
             raise NerfEditError(f"{edit.source}: deformed_cage and handles: give one of them, not both")
@@ -137,8 +145,9 @@ class CageDeformer(Deformer):
             raise NerfEditError(f"{edit.source}: nothing moves the cage: give 'deformed_cage' or 'handles'")
         if cage_value == "auto":
             if has_target:
-                raise NerfEditError(f"{edit.source}: deformed_cage: needs a cage file with the same vertex order, "
-                                    "but cage is \"auto\"")
+                raise NerfEditError(
+                    f'{edit.source}: deformed_cage: needs a cage file with the same vertex order, but cage is "auto"'
+                )
             label = f"{edit.source}: cage: auto"
             cage, mean_value = self._auto_cage(rest, label)
         else:
@@ -151,8 +160,10 @@ class CageDeformer(Deformer):
             target = _load_cage(edit, "deformed_cage")
             where = f"{edit.source}: deformed_cage: {edit.path('deformed_cage')}"
             if target.n_vertices != cage.n_vertices:
-                raise NerfEditError(f"{where}: has {target.n_vertices} vertices, the cage has {cage.n_vertices} "
-                                    "(same vertex order required)")
+                raise NerfEditError(
+                    f"{where}: has {target.n_vertices} vertices, the cage has {cage.n_vertices} "
+                    "(same vertex order required)"
+                )
             if not np.array_equal(np.sort(target.faces, axis=1), np.sort(loaded.faces, axis=1)):
                 raise NerfEditError(f"{where}: its triangles differ from the cage's (edit vertex positions only)")
             t = edit.times[:, None, None]
@@ -165,10 +176,14 @@ class CageDeformer(Deformer):
         self.rest_cage, self.deformed_cages, self._last = cage, poses, None
         self._weights, outside = self._coordinates(rest.vertices, mean_value)
         if outside:
-            fallback = ("mean value coordinates extrapolate them" if self.config.coordinates == "mvc"
-                        else "Green coordinates are undefined there; they use mean value coordinates")
-            warnings.warn(f"{label}: {outside} of {rest.n_vertices} mesh vertices lie outside the cage ({fallback})",
-                          stacklevel=2)
+            fallback = (
+                "mean value coordinates extrapolate them"
+                if self.config.coordinates == "mvc"
+                else "Green coordinates are undefined there; they use mean value coordinates"
+            )
+            warnings.warn(
+                f"{label}: {outside} of {rest.n_vertices} mesh vertices lie outside the cage ({fallback})", stacklevel=2
+            )
 
     def _mean_value(self, points: np.ndarray, cage: SurfaceMesh) -> np.ndarray:
         """Mean value coordinates ``(P, C)`` of ``points`` in ``cage``."""
@@ -260,5 +275,8 @@ class CageDeformer(Deformer):
         """Move every cage vertex by one rigid motion (a handle selecting the whole cage)."""
         out = {k: v for k, v in edit.items() if k not in ("deformed_cage", "handles")}
         everything = {"box": {"min": [-1e12] * 3, "max": [1e12] * 3}}
-        motion = {"rotate": {"axis": [1.0, -1.0, 2.0], "degrees": 30.0}, "translate": [0.1 * rest.bbox_diagonal, 0.0, 0.0]}
+        motion = {
+            "rotate": {"axis": [1.0, -1.0, 2.0], "degrees": 30.0},
+            "translate": [0.1 * rest.bbox_diagonal, 0.0, 0.0],
+        }
         return {**out, "handles": [{"select": everything, "transform": motion}]}

@@ -19,13 +19,19 @@ from deformers.cage.mean_value import CageGeometry
 def _skew(e: np.ndarray) -> np.ndarray:
     """Matrices ``M`` with ``M @ x = x × e`` for vectors ``e (..., 3)``."""
     zero = np.zeros(e.shape[:-1])
-    return np.stack([np.stack([zero, e[..., 2], -e[..., 1]], -1),
-                     np.stack([-e[..., 2], zero, e[..., 0]], -1),
-                     np.stack([e[..., 1], -e[..., 0], zero], -1)], -2)
+    return np.stack(
+        [
+            np.stack([zero, e[..., 2], -e[..., 1]], -1),
+            np.stack([-e[..., 2], zero, e[..., 0]], -1),
+            np.stack([e[..., 1], -e[..., 0], zero], -1),
+        ],
+        -2,
+    )
 
 
-def green_coordinates(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, chunk_size: int = 32,
-                      workers: int = 2):
+def green_coordinates(
+    points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, chunk_size: int = 32, workers: int = 2
+):
     """Green coordinates ``(phi (P, C), psi (P, F))`` float64 of interior ``points (P,3)`` w.r.t. the cage
     ``vertices (C,3)`` float, ``faces (F,3)`` int; faces must face outward.
 
@@ -51,7 +57,7 @@ def green_coordinates(points: np.ndarray, vertices: np.ndarray, faces: np.ndarra
     psi = np.empty((n_faces, len(points)))
 
     def chunk(start: int) -> None:
-        x = points[start:start + chunk_size]
+        x = points[start : start + chunk_size]
         block, n = slice(start, start + len(x)), len(x)
         dist = np.sqrt(((v[:, None, :] - x[None]) ** 2).sum(-1))  # (C, P)
         da, db = dist[ends[0]], dist[ends[1]]  # (3, F, P)
@@ -83,12 +89,16 @@ def green_face_terms(rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray) 
         return np.einsum("fi,fi->f", a, b)
 
     area = np.linalg.norm(np.cross(u, w), axis=1) / 2.0
-    stretch = np.sqrt(dot(ud, ud) * dot(w, w) - 2.0 * dot(ud, wd) * dot(u, w) + dot(wd, wd) * dot(u, u)) / (np.sqrt(8.0) * area)
+    stretch = np.sqrt(dot(ud, ud) * dot(w, w) - 2.0 * dot(ud, wd) * dot(u, w) + dot(wd, wd) * dot(u, u)) / (
+        np.sqrt(8.0) * area
+    )
     normal = np.cross(ud, wd)
     return stretch[:, None] * normal / np.linalg.norm(normal, axis=1, keepdims=True)
 
 
-def green_deform(phi: np.ndarray, psi: np.ndarray, rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def green_deform(
+    phi: np.ndarray, psi: np.ndarray, rest: np.ndarray, deformed: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
     """phi (P,C), psi (P,F), rest (C,3), deformed (C,3), faces (F,3) → ``x' = φ v' + ψ (s n')`` (P,3) float64, the
     deformed positions of the points whose coordinates are ``phi``, ``psi``."""
     return phi @ deformed + psi @ green_face_terms(rest, deformed, faces)

@@ -40,7 +40,7 @@ class CageGeometry:
     scatter: sp.csr_matrix  # (C, 3F): sums per-corner values into vertices (corner k of face f = row kF + f)
 
     @classmethod
-    def of(cls, vertices: np.ndarray, faces: np.ndarray) -> "CageGeometry":
+    def of(cls, vertices: np.ndarray, faces: np.ndarray) -> CageGeometry:
         """vertices (C,3) float, faces (F,3) int → the cage's precomputed geometry (centred on the vertex mean)."""
         vertices = np.asarray(vertices, dtype=np.float64)
         faces = np.asarray(faces, dtype=np.int64)
@@ -237,8 +237,13 @@ class _Kernel:
         if self.in_plane.any():
             fi, pi = np.nonzero(self.in_plane)
             corners = cage.vertices[cage.faces[fi]] - x[pi][:, None, :]  # (K, 3, 3)
-            bary = np.stack([np.einsum("ki,ki->k", cage.normals[fi], np.cross(corners[:, (k + 1) % 3], corners[:, (k + 2) % 3]))
-                             for k in range(3)], axis=1)
+            bary = np.stack(
+                [
+                    np.einsum("ki,ki->k", cage.normals[fi], np.cross(corners[:, (k + 1) % 3], corners[:, (k + 2) % 3]))
+                    for k in range(3)
+                ],
+                axis=1,
+            )
             bary /= cage.area2[fi, None] ** 2
             inside = (bary >= -BARY_EPS).all(1)
             fi, pi, bary = fi[inside], pi[inside], np.clip(bary[inside], 0.0, None)

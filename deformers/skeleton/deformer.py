@@ -20,16 +20,15 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.io.atomic import atomic_path
+from deformers.skeleton.bvh import BvhClip, parse_bvh
+from deformers.skeleton.heat_weights import bone_heat_weights
+from deformers.skeleton.skinning import Binding, normalize_weights, skin
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.spec import EditSpec, check_keys, vector
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-
-from deformers.skeleton.bvh import BvhClip, parse_bvh
-from deformers.skeleton.heat_weights import bone_heat_weights
-from deformers.skeleton.skinning import Binding, normalize_weights, skin
+from nerfedit_plugin.io.atomic import atomic_path
 
 
 def closest_point_barycentrics(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -79,7 +78,7 @@ class Skeleton:
     source: str
 
     @classmethod
-    def build(cls, names: list[str], parents: list[int], heads: np.ndarray, tails: np.ndarray, source: str) -> "Skeleton":
+    def build(cls, names: list[str], parents: list[int], heads: np.ndarray, tails: np.ndarray, source: str) -> Skeleton:
         """Validate names and hierarchy; NaN rows of ``tails`` get the default (children's mean head, else head)."""
         seen: dict[str, int] = {}
         for j, name in enumerate(names):
@@ -111,7 +110,7 @@ class Skeleton:
         return cls(tuple(names), parents_arr, np.asarray(heads, dtype=np.float64), tails, tuple(order), source)
 
     @classmethod
-    def from_json(cls, path: Path) -> "Skeleton":
+    def from_json(cls, path: Path) -> Skeleton:
         source = str(path)
         try:
             data = json.loads(path.read_text())
@@ -143,7 +142,7 @@ class Skeleton:
         return cls.build(names, parents, np.asarray(heads), np.asarray(tails), source)
 
     @classmethod
-    def from_bvh(cls, clip: BvhClip) -> "Skeleton":
+    def from_bvh(cls, clip: BvhClip) -> Skeleton:
         heads = clip.heads
         return cls.build(list(clip.names), list(clip.parents), heads, heads + clip.end_sites, clip.source)
 
@@ -172,7 +171,9 @@ class Skeleton:
         for name, item in pose.items():
             key = f"pose.{name}"
             if name not in self.names:
-                raise NerfEditError(f"{source}: {key}: unknown joint (the skeleton {self.source} has {list(self.names)})")
+                raise NerfEditError(
+                    f"{source}: {key}: unknown joint (the skeleton {self.source} has {list(self.names)})"
+                )
             j = self.names.index(name)
             check_keys(item, {"rotate", "translate"}, source, key)
             if not item:

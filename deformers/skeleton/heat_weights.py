@@ -54,7 +54,9 @@ def closest_on_segments(points: np.ndarray, heads: np.ndarray, tails: np.ndarray
     axis = tails - heads
     length2 = np.sum(axis * axis, axis=1)
     rel = points[:, None, :] - heads[None]
-    s = np.divide(np.einsum("njk,jk->nj", rel, axis), length2, out=np.zeros((len(points), len(heads))), where=length2 > 0)
+    s = np.divide(
+        np.einsum("njk,jk->nj", rel, axis), length2, out=np.zeros((len(points), len(heads))), where=length2 > 0
+    )
     closest = heads[None] + np.clip(s, 0.0, 1.0)[..., None] * axis[None]
     return closest, np.linalg.norm(points[:, None, :] - closest, axis=2)
 

@@ -37,7 +37,7 @@ class Binding:
     dominated: tuple[np.ndarray, ...]
 
     @classmethod
-    def create(cls, points: np.ndarray, weights: np.ndarray) -> "Binding":
+    def create(cls, points: np.ndarray, weights: np.ndarray) -> Binding:
         """points (N,3) float, weights (N,J) float (rows summing to 1) → the binding (float64 component rows)."""
         weights = np.asarray(weights, dtype=np.float64)
         dominant = weights.argmax(1)

@@ -66,7 +66,7 @@ def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, still, 
     for block in prange((n + BLOCK - 1) // BLOCK):
         first, stop = block * BLOCK, min(n, (block + 1) * BLOCK)
         codes = np.zeros(BLOCK, dtype=np.uint8)
-        _codes(x[first:stop], scale, origin, mask, side, codes[:stop - first])
+        _codes(x[first:stop], scale, origin, mask, side, codes[: stop - first])
         words = codes.view(np.uint64)
         last, last_rest = -1, -1
         for word in range(BLOCK // 8):
@@ -91,8 +91,12 @@ def bend_points(x, scale, origin, mask, side, deformed, rest, rest_rows, still, 
                         tet[m] = t
                     if not still[t]:  # a still tet leaves x where it is
                         for i in range(3):
-                            points[m, i] = (rest_rows[t, i] + rest_rows[t, 3 + 3 * i] * b1
-                                            + rest_rows[t, 4 + 3 * i] * b2 + rest_rows[t, 5 + 3 * i] * b3)
+                            points[m, i] = (
+                                rest_rows[t, i]
+                                + rest_rows[t, 3 + 3 * i] * b1
+                                + rest_rows[t, 4 + 3 * i] * b2
+                                + rest_rows[t, 5 + 3 * i] * b3
+                            )
                 elif bits & 4:
                     empty[m] = True
                 elif bits & 2:

@@ -18,9 +18,9 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from nerfedit_plugin.io.atomic import atomic_path
-from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.bending.locate import TetLocator, box_cells
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.io.atomic import atomic_path
 
 FORMAT_VERSION = 1
 KEYS = ("rest_vertices", "tets", "deformed_vertices")
@@ -48,8 +48,9 @@ class CanonicalPoints(NamedTuple):
 
 def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Arrays as (N,3) f64, (K,4) i64, (F,N,3) f64, or :class:`NerfEditError` naming ``where`` and the key."""
-    rest, tets, deformed = (x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
-                            for x in (rest, tets, deformed))
+    rest, tets, deformed = (
+        x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x) for x in (rest, tets, deformed)
+    )
     if rest.ndim != 2 or rest.shape[1] != 3 or len(rest) < 4:
         raise NerfEditError(f"{where}: rest_vertices: expected shape (N>=4, 3), got {rest.shape}")
     if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) == 0:
@@ -57,8 +58,7 @@ def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray,
     if deformed.ndim == 2:
         deformed = deformed[None]
     if deformed.ndim != 3 or deformed.shape[1:] != rest.shape or len(deformed) == 0:
-        raise NerfEditError(
-            f"{where}: deformed_vertices: expected shape (F>=1, {len(rest)}, 3), got {deformed.shape}")
+        raise NerfEditError(f"{where}: deformed_vertices: expected shape (F>=1, {len(rest)}, 3), got {deformed.shape}")
     for key, array in (("rest_vertices", rest), ("deformed_vertices", deformed)):
         if not np.issubdtype(array.dtype, np.number) or not np.isfinite(array).all():
             raise NerfEditError(f"{where}: {key}: values must be finite numbers")
@@ -129,10 +129,12 @@ class DeformationField:
     or tensors, stored as float64 / int64 numpy arrays; points are mapped in ``dtype`` on ``device``.
     """
 
-    def __init__(self, rest_vertices, tets, deformed_vertices, *, device="cpu", dtype=torch.float32,
-                 kernel: str = "auto"):
+    def __init__(
+        self, rest_vertices, tets, deformed_vertices, *, device="cpu", dtype=torch.float32, kernel: str = "auto"
+    ):
         self.rest_vertices, self.tets, self.deformed_vertices = _validate(
-            rest_vertices, tets, deformed_vertices, "DeformationField")
+            rest_vertices, tets, deformed_vertices, "DeformationField"
+        )
         self.device, self.dtype = torch.device(device), dtype
         if kernel not in ("auto", "numba", "torch") or (kernel == "numba" and self.device.type != "cpu"):
             raise ValueError(f"kernel must be 'auto', 'torch' or (on the CPU) 'numba', got {kernel!r}")
@@ -203,12 +205,14 @@ class DeformationField:
 
     def _rest(self) -> TetLocator:
         if self._rest_locator is None:
-            self._rest_locator = TetLocator(self.rest_vertices, self.tets, dtype=self.dtype, device=self.device,
-                                            kernel=self.kernel)
+            self._rest_locator = TetLocator(
+                self.rest_vertices, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel
+            )
         return self._rest_locator
 
-    def bend(self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True
-             ) -> BentPoints:
+    def bend(
+        self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True
+    ) -> BentPoints:
         """Map deformed-space points ``x (M,3)`` of ``frame`` to canonical space; report each point's deformed tet
         (see the module docstring; ``tet`` is None with ``tets=False``, for callers that need no Jacobian). ``out``:
         an ``(M,3)`` tensor that receives ``x_c`` (and is returned as ``points``); it may be ``x`` itself, to bend
@@ -229,8 +233,9 @@ class DeformationField:
             target = out.copy_(target)
         return BentPoints(target, tet if tets else None, empty)
 
-    def _bend_compiled(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor, tets: bool
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    def _bend_compiled(
+        self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor, tets: bool
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`bend` in one compiled pass (:mod:`nerfedit_plugin.bending._bend_kernel`): writes ``out``, returns
         ``(tet, empty)`` (``tet`` empty without ``tets``)."""
         from nerfedit_plugin.bending._bend_kernel import bend_points
@@ -243,8 +248,22 @@ class DeformationField:
             out.copy_(x)
         scale, origin, mask = (t.numpy() for t in mapping.near)
         rest = self._rest()
-        launch(bend_points, x.numpy(), scale, origin, mask, NEAR_CELLS + 2, mapping.locator.arrays, rest.arrays,
-               mapping.rest_rows.numpy(), mapping.still.numpy(), rest.rounds, out.numpy(), tet.numpy(), empty.numpy())
+        launch(
+            bend_points,
+            x.numpy(),
+            scale,
+            origin,
+            mask,
+            NEAR_CELLS + 2,
+            mapping.locator.arrays,
+            rest.arrays,
+            mapping.rest_rows.numpy(),
+            mapping.still.numpy(),
+            rest.rounds,
+            out.numpy(),
+            tet.numpy(),
+            empty.numpy(),
+        )
         return tet, empty
 
     def _bend_torch(self, mapping: _Frame, x: torch.Tensor, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -257,8 +276,9 @@ class DeformationField:
         idx = inside[~mapping.still.index_select(0, found.index_select(0, inside))]  # still tets: x_c = x
         r = mapping.rest_rows.index_select(0, found.index_select(0, idx)).t()  # (12,P)
         b = bary.t().index_select(1, idx)  # (4,P)
-        mapped = [r[i] + r[3 + 3 * i] * b[1] + r[4 + 3 * i] * b[2] + r[5 + 3 * i] * b[3]
-                  for i in range(3)]  # r0 + R (b1, b2, b3) = Σ b_i r_i
+        mapped = [
+            r[i] + r[3 + 3 * i] * b[1] + r[4 + 3 * i] * b[2] + r[5 + 3 * i] * b[3] for i in range(3)
+        ]  # r0 + R (b1, b2, b3) = Σ b_i r_i
         rows = near.index_select(0, idx)
         empty = code.bitwise_and(4).to(torch.bool)
         unsure = torch.nonzero(code.bitwise_and_(6).eq_(2)).squeeze(1)
@@ -286,11 +306,16 @@ class DeformationField:
     def save(self, path: str | os.PathLike) -> None:
         """Write ``deformation.npz`` atomically."""
         with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.savez(handle, format_version=np.int64(FORMAT_VERSION), rest_vertices=self.rest_vertices,
-                     tets=self.tets, deformed_vertices=self.deformed_vertices)
+            np.savez(
+                handle,
+                format_version=np.int64(FORMAT_VERSION),
+                rest_vertices=self.rest_vertices,
+                tets=self.tets,
+                deformed_vertices=self.deformed_vertices,
+            )
 
     @classmethod
-    def load(cls, path: str | os.PathLike, *, device="cpu", dtype=torch.float32) -> "DeformationField":
+    def load(cls, path: str | os.PathLike, *, device="cpu", dtype=torch.float32) -> DeformationField:
         """Read a ``deformation.npz``; a missing, corrupt or incomplete file raises :class:`NerfEditError`."""
         if not os.path.isfile(path):
             raise NerfEditError(f"{path}: deformation file not found")
@@ -311,7 +336,7 @@ class DeformationField:
         return cls(*_validate(*arrays, str(path)), device=device, dtype=dtype)
 
     @classmethod
-    def identity(cls, vertices, tets, n_frames: int = 1, **kwargs) -> "DeformationField":
+    def identity(cls, vertices, tets, n_frames: int = 1, **kwargs) -> DeformationField:
         """vertices (N,3), tets (K,4) → a field whose ``n_frames`` frames all equal the rest proxy."""
         vertices = np.asarray(vertices, dtype=np.float64)
         return cls(vertices, tets, np.repeat(vertices[None], n_frames, axis=0), **kwargs)

@@ -161,8 +161,16 @@ class TetLocator:
     """
 
     def __init__(
-        self, vertices, tets, *, dtype: torch.dtype = torch.float32, device=None, cells_per_tet: float = 4.0,
-        chunk: int | None = None, rounds: int = 3, kernel: str = "auto",
+        self,
+        vertices,
+        tets,
+        *,
+        dtype: torch.dtype = torch.float32,
+        device=None,
+        cells_per_tet: float = 4.0,
+        chunk: int | None = None,
+        rounds: int = 3,
+        kernel: str = "auto",
     ):
         self._table = table = _TetTable(vertices, tets, dtype, device)
         self.dtype, self.device, self.eps = table.dtype, table.device, table.eps
@@ -233,11 +241,15 @@ class TetLocator:
 
         full = torch.nonzero(self._cell_mask == -1).squeeze(1)
         cells = torch.nonzero((self._cell_mask != 0) & (self._cell_mask != -1)).squeeze(1)
-        bits = self._cell_mask.index_select(0, cells)[:, None].bitwise_right_shift(
-            torch.arange(_SUB ** 3, device=self.device)).bitwise_and_(1)
+        bits = (
+            self._cell_mask.index_select(0, cells)[:, None]
+            .bitwise_right_shift(torch.arange(_SUB**3, device=self.device))
+            .bitwise_and_(1)
+        )
         owner, bit = torch.nonzero(bits).unbind(1)
         fine = _SUB * coords(cells.index_select(0, owner)) + torch.stack(
-            [bit // (_SUB * _SUB), (bit // _SUB) % _SUB, bit % _SUB], 1)
+            [bit // (_SUB * _SUB), (bit // _SUB) % _SUB, bit % _SUB], 1
+        )
         size = 1 / (_SUB * self._inv.to(torch.float64))
         lo = self._lo.to(torch.float64) + torch.cat([_SUB * coords(full) - 0.01, fine - 0.01]) * size
         span = torch.cat([torch.full((len(full), 1), _SUB + 0.02), torch.full((len(fine), 1), 1.02)]).to(lo)
@@ -254,7 +266,7 @@ class TetLocator:
         the faces of its tets that have no tet of G across them on the other side of the face plane (so overlapping
         or inverted tets only add faces); a face meets a cell only if its bounding box does and its plane does."""
         table, device = self._table, self.device
-        covered = torch.zeros(side ** 3, dtype=torch.bool, device=device)
+        covered = torch.zeros(side**3, dtype=torch.bool, device=device)
         if not table.usable.any():
             return covered
         good = table.usable & (table.error <= self.eps / 2)
@@ -268,7 +280,9 @@ class TetLocator:
         own = ((table.corners[tet, corner] - a) * normal).sum(1)
         there = across.clamp_min(0)
         ids = table.tets[tet[:, None], face]  # (4K,3) vertex ids of the face
-        off = (table.tets[there][:, :, None] != ids[:, None]).all(2).to(torch.uint8).argmax(1)  # its corner off the face
+        off = (
+            (table.tets[there][:, :, None] != ids[:, None]).all(2).to(torch.uint8).argmax(1)
+        )  # its corner off the face
         other = ((table.corners[there, off] - a) * normal).sum(1)
         closed = (across >= 0) & good[there] & (own * other < 0)
         boundary = torch.nonzero(good[tet] & ~closed).squeeze(1)
@@ -281,11 +295,13 @@ class TetLocator:
         distance = ((ijk + 0.5 - u[0][owner]) * normal_u[owner]).sum(1).abs()
         reach = 0.5 * (1 + 2e-3) * normal_u[owner].abs().sum(1) * (1 + 1e-9)
         strides = torch.tensor([side * side, side, 1], device=device)
-        touched = torch.zeros(side ** 3, dtype=torch.bool, device=device)
+        touched = torch.zeros(side**3, dtype=torch.bool, device=device)
         touched[(ijk[distance <= reach] * strides).sum(1)] = True
         # untouched inner cells: inside when the centre lies in a tet of G
         box = torch.stack([table.corners.amin((0, 1)), table.corners.amax((0, 1))]) * scale + offset
-        axes = [torch.arange(max(1, int(box[0, i])), min(side - 1, int(box[1, i]) + 1), device=device) for i in range(3)]
+        axes = [
+            torch.arange(max(1, int(box[0, i])), min(side - 1, int(box[1, i]) + 1), device=device) for i in range(3)
+        ]
         inner = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
         inner = inner[~touched[(inner * strides).sum(1)]]
         centres = (inner + 0.5 - offset) / scale
@@ -317,7 +333,7 @@ class TetLocator:
         value = (grads * ((0.5 - offset) / scale - origin)[:, None]).sum(2)
         value[:, 0] += 1
         value += (grads.abs() * ((0.5 + 1e-3) / scale)).sum(2) + 2 * table.tolerance.cpu()[ids, None]
-        reach = np.zeros(side ** 3, dtype=np.bool_)
+        reach = np.zeros(side**3, dtype=np.bool_)
         mark_reach(first.numpy(), last.numpy(), slope.numpy(), value.numpy(), side, reach)
         return torch.from_numpy(reach).to(self.device)
 
@@ -359,7 +375,7 @@ class TetLocator:
         self._lo = table.box_lo[ids].amin(0)
         hi = table.box_hi[ids].amax(0)
         corners = table.corners[ids]
-        volume = torch.linalg.det((corners[:, 1:] - corners[:, :1])).abs().mean() / 6
+        volume = torch.linalg.det(corners[:, 1:] - corners[:, :1]).abs().mean() / 6
         cell = float((volume / cells_per_tet) ** (1 / 3))
         while True:
             self._inv = torch.tensor(1 / cell, dtype=torch.float64).to(dtype).expand(3).to(self.device)
@@ -405,22 +421,26 @@ class TetLocator:
         offset = ((sub + 0.5) / s - 0.5) * h  # sub-cell centre relative to the cell centre, per axis
         box_lo = torch.floor(self._grid_coords(table.box_lo) * s).to(torch.int64)
         box_hi = torch.floor(self._grid_coords(table.box_hi) * s).to(torch.int64)
-        bits = torch.zeros((n_cells, s ** 3), dtype=torch.uint8, device=self.device)
-        for a, b in _batches(torch.full_like(tet, 4 * s ** 3)):
+        bits = torch.zeros((n_cells, s**3), dtype=torch.uint8, device=self.device)
+        for a, b in _batches(torch.full_like(tet, 4 * s**3)):
             t, c = tet[a:b], ijk[a:b]
             g = table.grads[t]  # (P,4,3)
             value = table.exact_bary(t, (lo + (c + 0.5) * h)[:, None])[:, 0]  # (P,4) at the cell centre
             value = value + (g.abs() * (h * (0.5 / s + 1e-3))).sum(2) + 2 * table.tolerance[t, None]
             along = g[..., None] * offset  # (P,4,3,s)
-            reach = (value[:, :, None, None, None] + along[:, :, 0, :, None, None] + along[:, :, 1, None, :, None]
-                     + along[:, :, 2, None, None, :])  # (P,4,s,s,s): max over the sub-cell of b_i + 2 tol
+            reach = (
+                value[:, :, None, None, None]
+                + along[:, :, 0, :, None, None]
+                + along[:, :, 1, None, :, None]
+                + along[:, :, 2, None, None, :]
+            )  # (P,4,s,s,s): max over the sub-cell of b_i + 2 tol
             fine = s * c[:, :, None] + sub  # (P,3,s) sub-cell indices
             inbox = (fine >= box_lo[t, :, None]) & (fine <= box_hi[t, :, None])
             inbox = inbox[:, 0, :, None, None] & inbox[:, 1, None, :, None] & inbox[:, 2, None, None, :]
             ok = (reach >= 0).all(1) & inbox
-            ok = ok.reshape(-1, s ** 3).to(torch.uint8)
+            ok = ok.reshape(-1, s**3).to(torch.uint8)
             bits.scatter_reduce_(0, cell[a:b, None].expand_as(ok), ok, "amax")
-        weights = torch.tensor([1 << i for i in range(s ** 3 - 1)] + [-(1 << 63)], device=self.device)
+        weights = torch.tensor([1 << i for i in range(s**3 - 1)] + [-(1 << 63)], device=self.device)
         return (bits.to(torch.int64) * weights).sum(1)
 
     def _safe_tets(self, starts: torch.Tensor, lengths: torch.Tensor, tet: torch.Tensor) -> torch.Tensor:
@@ -457,16 +477,28 @@ class TetLocator:
         return self._run(_as_tensor(points, self.dtype, self.device).reshape(-1, 3), None)
 
     @functools.cached_property
-    def arrays(self) -> "LocatorArrays":
+    def arrays(self) -> LocatorArrays:
         """The grid as numpy arrays (views of the CPU tensors) for :mod:`nerfedit_plugin.bending._locate_kernel`."""
         from nerfedit_plugin.bending._locate_kernel import LocatorArrays
 
         scalar = self._table.rows.numpy().dtype.type
         return LocatorArrays(
-            self._lo.numpy(), (self._inv * _SUB).numpy(), np.asarray(self.grid_shape, dtype=np.int64),
-            np.asarray(self._strides, dtype=np.int64), self._cell_mask.numpy(), self._octant_primary.numpy(),
-            self._cell_start.numpy(), self._cell_count.numpy(), self._entry_tet.numpy(), self._table.rows.numpy(),
-            self._neighbours.numpy(), self._deep.numpy(), self._accept.numpy(), scalar(1), scalar(-self.eps))
+            self._lo.numpy(),
+            (self._inv * _SUB).numpy(),
+            np.asarray(self.grid_shape, dtype=np.int64),
+            np.asarray(self._strides, dtype=np.int64),
+            self._cell_mask.numpy(),
+            self._octant_primary.numpy(),
+            self._cell_start.numpy(),
+            self._cell_count.numpy(),
+            self._entry_tet.numpy(),
+            self._table.rows.numpy(),
+            self._neighbours.numpy(),
+            self._deep.numpy(),
+            self._accept.numpy(),
+            scalar(1),
+            scalar(-self.eps),
+        )
 
     def _run(self, points: torch.Tensor, bary: torch.Tensor | None) -> torch.Tensor:
         """The tet per point of ``points (M,3)`` (any accepting one without ``bary (4,M)``, else filled too)."""
@@ -491,6 +523,7 @@ class TetLocator:
     def _locate_chunk(self, columns: torch.Tensor, tet: torch.Tensor, bary: torch.Tensor | None) -> None:
         """Write the answer of points ``columns (3,P)`` into ``tet`` and ``bary (4,P)``; without ``bary``, any
         accepting tet (membership only): every tet's acceptance is final at ``min b >= -eps``."""
+
         def write(where: torch.Tensor, found: torch.Tensor, b) -> None:
             tet.scatter_(0, where, found.to(torch.int64))
             for i in range(4 if bary is not None else 0):
@@ -513,8 +546,11 @@ class TetLocator:
             low = _min_bary(b)
             done = low >= final_depth.index_select(0, code)
             final = torch.nonzero(done).squeeze(1)
-            write(pos.index_select(0, final), code.index_select(0, final),
-                  [x.index_select(0, final) for x in b] if bary is not None else None)
+            write(
+                pos.index_select(0, final),
+                code.index_select(0, final),
+                [x.index_select(0, final) for x in b] if bary is not None else None,
+            )
             if step + 1 == self.rounds:
                 scan.append(pos.index_select(0, torch.nonzero(~done).squeeze(1)))
                 break
@@ -523,7 +559,9 @@ class TetLocator:
             out = torch.nonzero(rejected).squeeze(1)  # walk across the face of the most negative b_i
             low, b = low.index_select(0, out), [x.index_select(0, out) for x in b]
             nb = self._neighbours_t.index_select(1, code.index_select(0, out))  # (4,R): across the face opposite i
-            code = torch.where(b[0] == low, nb[0], torch.where(b[1] == low, nb[1], torch.where(b[2] == low, nb[2], nb[3])))
+            code = torch.where(
+                b[0] == low, nb[0], torch.where(b[1] == low, nb[1], torch.where(b[2] == low, nb[2], nb[3]))
+            )
             inner = code >= 0
             scan.append(pos.index_select(0, out.index_select(0, torch.nonzero(~inner).squeeze(1))))
             go = torch.nonzero(inner).squeeze(1)
@@ -609,7 +647,7 @@ def locate_brute_force(vertices, tets, points, dtype: torch.dtype = torch.float3
         return tet, bary
     step = max(1, chunk // k)
     for start in range(0, m, step):
-        p = points[start:start + step]
+        p = points[start : start + step]
         b = barycentric(table.rows[None], p[:, None])
         hit = (_min_bary(b) >= -table.eps) & table.usable
         first = torch.where(hit.any(1), hit.to(torch.int8).argmax(1), -1)

@@ -15,8 +15,15 @@ from nerfedit_plugin.cli.common import Command, console, parse, print_error
 from nerfedit_plugin.errors import NerfEditError
 
 COMMANDS: dict[str, str] = {
-    "train": "train", "extract": "extract", "edit": "edit", "render": "render", "eval": "evaluate", "view": "view",
-    "generate": "generate", "demo": "demo", "plugins": "plugins",
+    "train": "train",
+    "extract": "extract",
+    "edit": "edit",
+    "render": "render",
+    "eval": "evaluate",
+    "view": "view",
+    "generate": "generate",
+    "demo": "demo",
+    "plugins": "plugins",
 }
 """subcommand -> its module in ``nerfedit_plugin.cli`` (imported when the subcommand runs: startup stays fast)."""
 

@@ -45,12 +45,23 @@ NOT_LOADED = frozenset({"load_config", "overwrite", "verbose"})
 PATH_STRINGS = frozenset({"mesh"})
 """``str`` args that name a file unless they are ``sample:NAME`` (recorded absolute, like ``Path`` args)."""
 
-LOAD_CONFIG = ("load_config", Annotated[Path | None, tyro.conf.arg(
-    help="Re-run a recorded command: the config.yml of its output folder (or the folder) gives every option; flags "
-         "given on the command line override it. Relative paths in the file are resolved against the current folder "
-         "(nerfedit records them absolute).")], dataclasses.field(default=None))
-VERBOSE = ("verbose", Annotated[bool, tyro.conf.arg(help="Show tracebacks for errors.")],
-           dataclasses.field(default=False))
+LOAD_CONFIG = (
+    "load_config",
+    Annotated[
+        Path | None,
+        tyro.conf.arg(
+            help="Re-run a recorded command: the config.yml of its output folder (or the folder) gives every option; flags "
+            "given on the command line override it. Relative paths in the file are resolved against the current folder "
+            "(nerfedit records them absolute)."
+        ),
+    ],
+    dataclasses.field(default=None),
+)
+VERBOSE = (
+    "verbose",
+    Annotated[bool, tyro.conf.arg(help="Show tracebacks for errors.")],
+    dataclasses.field(default=False),
+)
 """The flags every subcommand shares (``--load-config`` those that record), appended by :func:`parse`."""
 
 
@@ -90,8 +101,10 @@ def plugin_list(registry: Registry, group: str, option: str, chosen: str | None 
     found = registry.plugins.get(group, {})
     width = max(map(len, found), default=0)
     lines = [f"{group.split('.')[-1]} (--{option} NAME; * the chosen one, whose options are --{option}-options.*):"]
-    lines += [f"  {'*' if name == chosen else ' '} {name:<{width}}  {describe(found[name].config_class)}"
-              for name in sorted(found)]
+    lines += [
+        f"  {'*' if name == chosen else ' '} {name:<{width}}  {describe(found[name].config_class)}"
+        for name in sorted(found)
+    ]
     skipped = sorted(s.name for s in registry.skipped if s.group == group)
     if skipped:
         lines.append(f"  skipped (broken, see `nerfedit plugins`): {', '.join(skipped)}")
@@ -113,8 +126,11 @@ def read_recorded(path: Path, command: str) -> tuple[Path, dict]:
     if isinstance(plain.get("command"), dict):
         plain = plain["command"]
     elif {"field", "data", "field_config"} <= plain.keys() and command == "train":
-        plain = {"field": plain["field"], "data": str(file.parent / plain["data"]),
-                 "field_options": plain["field_config"]}
+        plain = {
+            "field": plain["field"],
+            "data": str(file.parent / plain["data"]),
+            "field_options": plain["field_config"],
+        }
     return file, {k: v for k, v in plain.items() if k not in NOT_LOADED}
 
 
@@ -123,8 +139,10 @@ def _check_target(file: Path, key: str, plain: Any, config_class: type) -> None:
     recorded = plain.get("_target") if isinstance(plain, dict) else None
     target = config_class()._target
     if isinstance(recorded, str) and _import(recorded) is not target:
-        print_warning(f"{file}: {key}._target {recorded} is not {target.__module__}.{target.__qualname__}, "
-                      "which the plugin builds now; using it")
+        print_warning(
+            f"{file}: {key}._target {recorded} is not {target.__module__}.{target.__qualname__}, "
+            "which the plugin builds now; using it"
+        )
 
 
 def _import(name: str) -> Any:
@@ -157,14 +175,16 @@ def parse(command: Command, argv: list[str]) -> Any:
     if file is not None:
         unknown = sorted(set(loaded) - {f.name for f in dataclasses.fields(args)})
         if unknown:
-            raise NerfEditError(f"{file}: not a config.yml of `nerfedit {command.name}` (unknown keys: "
-                                f"{', '.join(unknown)})")
+            raise NerfEditError(
+                f"{file}: not a config.yml of `nerfedit {command.name}` (unknown keys: {', '.join(unknown)})"
+            )
         try:
             default = from_plain(args, loaded, missing=tyro.MISSING)
         except (TypeError, ValueError) as exc:
             raise NerfEditError(f"{file}: {exc}") from exc
-    return tyro.cli(args, args=argv, prog=f"nerfedit {command.name}", description=description, default=default,
-                    config=TYRO_CONFIG)
+    return tyro.cli(
+        args, args=argv, prog=f"nerfedit {command.name}", description=description, default=default, config=TYRO_CONFIG
+    )
 
 
 def recorded(args: Any) -> Any:
@@ -173,8 +193,9 @@ def recorded(args: Any) -> Any:
     changes = {}
     for field in dataclasses.fields(args):
         value = getattr(args, field.name)
-        if isinstance(value, Path) or (field.name in PATH_STRINGS and isinstance(value, str)
-                                       and not value.startswith("sample:")):
+        if isinstance(value, Path) or (
+            field.name in PATH_STRINGS and isinstance(value, str) and not value.startswith("sample:")
+        ):
             changes[field.name] = type(value)(os.path.abspath(value))
     return dataclasses.replace(args, **changes)
 
@@ -197,8 +218,15 @@ def _to_stderr(text: str) -> None:
         console.stderr = False
 
 
-def print_table(title: str, columns: Iterable[str], rows: Iterable[Iterable[Any]], *, justify: str = "right",
-                overflow: str = "ellipsis", **table: Any) -> None:
+def print_table(
+    title: str,
+    columns: Iterable[str],
+    rows: Iterable[Iterable[Any]],
+    *,
+    justify: str = "right",
+    overflow: str = "ellipsis",
+    **table: Any,
+) -> None:
     """A rich table of ``rows`` (cells are printed with ``str``)."""
     out = Table(title=title, **table)
     for column in columns:

@@ -28,16 +28,28 @@ def demo(args: DemoArgs) -> None:
     from nerfedit_plugin.demo import run_demo
 
     with console.status("demo") as status:
-        summary = run_demo(args.out, preset=args.preset, field=args.field, overwrite=args.overwrite, progress=False,
-                           on_stage=lambda stage: status.update(f"[bold]demo: {stage}[/]"), record=recorded(args))
-    print_table("nerfedit demo", ("stage", "seconds"),
-                [(stage, f"{seconds:.1f}") for stage, seconds in summary["seconds"].items()])
+        summary = run_demo(
+            args.out,
+            preset=args.preset,
+            field=args.field,
+            overwrite=args.overwrite,
+            progress=False,
+            on_stage=lambda stage: status.update(f"[bold]demo: {stage}[/]"),
+            record=recorded(args),
+        )
+    print_table(
+        "nerfedit demo",
+        ("stage", "seconds"),
+        [(stage, f"{seconds:.1f}") for stage, seconds in summary["seconds"].items()],
+    )
     frame = summary["edit"]["per_frame"][0]
     before, after = summary["before"], summary["after"]
-    console.print(f"trained {args.field} field on the test views: PSNR {before['psnr']:.2f} dB, "
-                  f"SSIM {before['ssim']:.3f}; edited renders vs the deformed source mesh: "
-                  f"PSNR {after['psnr']:.2f} dB, SSIM {after['ssim']:.3f}; "
-                  f"lift residual {frame['residual_max']:.1e} × bbox, {frame['inverted_tets']} inverted tets")
+    console.print(
+        f"trained {args.field} field on the test views: PSNR {before['psnr']:.2f} dB, "
+        f"SSIM {before['ssim']:.3f}; edited renders vs the deformed source mesh: "
+        f"PSNR {after['psnr']:.2f} dB, SSIM {after['ssim']:.3f}; "
+        f"lift residual {frame['residual_max']:.1e} × bbox, {frame['inverted_tets']} inverted tets"
+    )
     console.print(f"outputs in {summary['out']}", soft_wrap=True)
     print_table("files", ("what", "where"), summary["files"].items(), justify="left", overflow="fold")
 

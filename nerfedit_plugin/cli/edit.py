@@ -58,21 +58,42 @@ def edit(args: EditArgs) -> None:
     mesh = args.mesh if args.mesh is not None else run.mesh()
     distance = args.camera_distance if args.camera_distance is not None or run is None else run.camera_distance()
     with console.status("editing") as status:
-        result = run_edit(mesh, args.deformer_options, args.edit, args.out, lift=args.lift,
-                          lift_config=args.lift_options, proxy_config=args.proxy, camera_distance=distance,
-                          cache_dir=args.cache_dir, overwrite=args.overwrite, record=recorded(args),
-                          on_stage=lambda stage: status.update(f"[bold]{stage}[/]"))
+        result = run_edit(
+            mesh,
+            args.deformer_options,
+            args.edit,
+            args.out,
+            lift=args.lift,
+            lift_config=args.lift_options,
+            proxy_config=args.proxy,
+            camera_distance=distance,
+            cache_dir=args.cache_dir,
+            overwrite=args.overwrite,
+            record=recorded(args),
+            on_stage=lambda stage: status.update(f"[bold]{stage}[/]"),
+        )
     report = result.report
     print_table(
         f"nerfedit edit → {result.out}",
         ("frame", "residual max (×bbox)", "residual rms", "inverted tets", "folded faces", "iterations", "seconds"),
-        [(i, f"{f['residual_max']:.2e}", f"{f['residual_rms']:.2e}", f["inverted_tets"], f["flipped_surface_faces"],
-          f["iterations"], f"{f['seconds']:.2f}") for i, f in enumerate(report["per_frame"])],
+        [
+            (
+                i,
+                f"{f['residual_max']:.2e}",
+                f"{f['residual_rms']:.2e}",
+                f["inverted_tets"],
+                f["flipped_surface_faces"],
+                f["iterations"],
+                f"{f['seconds']:.2f}",
+            )
+            for i, f in enumerate(report["per_frame"])
+        ],
     )
     proxy = report["proxy"]
     timings = ", ".join(f"{k} {v:.2f}s" for k, v in report["timings_s"].items())
-    console.print(f"proxy {proxy['vertices']} vertices / {proxy['tets']} tets{' (cached)' if proxy['cached'] else ''}; "
-                  f"{timings}")
+    console.print(
+        f"proxy {proxy['vertices']} vertices / {proxy['tets']} tets{' (cached)' if proxy['cached'] else ''}; {timings}"
+    )
     if args.render_cameras is not None:
         out = render_run(run, args.render_cameras, result.out / "deformation.npz", None, result.out / "renders", False)
         console.print(f"renders → {out}")

@@ -29,9 +29,14 @@ def evaluate(args: EvalArgs) -> None:
 
     result = evaluate_folders(args.pred, args.gt, args.background)
     rows = list(result["images"].items()) + [("mean", result["mean"])]
-    print_table(f"nerfedit eval: {args.pred} vs {args.gt}", ("image", "PSNR (dB)", "SSIM", "LPIPS"), [
-        (name, f"{m['psnr']:.2f}", f"{m['ssim']:.4f}", "—" if m["lpips"] is None else f"{m['lpips']:.4f}")
-        for name, m in rows])
+    print_table(
+        f"nerfedit eval: {args.pred} vs {args.gt}",
+        ("image", "PSNR (dB)", "SSIM", "LPIPS"),
+        [
+            (name, f"{m['psnr']:.2f}", f"{m['ssim']:.4f}", "—" if m["lpips"] is None else f"{m['lpips']:.4f}")
+            for name, m in rows
+        ],
+    )
     if args.json_out is not None:
         write_text(args.json_out, json.dumps(result, indent=2))
 

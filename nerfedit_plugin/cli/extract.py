@@ -28,8 +28,9 @@ def extract(args: ExtractArgs) -> None:
     from nerfedit_plugin.io.run import extract_mesh, open_run
 
     run = open_run(args.run)
-    path = extract_mesh(run, args.resolution, args.level, overwrite=args.overwrite,
-                        largest_component=args.largest_component)
+    path = extract_mesh(
+        run, args.resolution, args.level, overwrite=args.overwrite, largest_component=args.largest_component
+    )
     mesh = run.mesh()
     own = " (the mesh field's own mesh)" if run.from_mesh else ""
     console.print(f"{path}: {mesh.n_vertices} vertices, {len(mesh.faces)} faces{own}")

@@ -16,12 +16,25 @@ class PluginsArgs:
 
 def plugins(args: PluginsArgs) -> None:
     registry = discover()
-    print_table("nerfedit plugins", ("group", "name", "description", "entry point", "distribution"), [
-        (group, p.name, describe(p.config_class), p.target, p.distribution)
-        for group, found in registry.plugins.items() for p in found.values()], justify="left", overflow="fold")
+    print_table(
+        "nerfedit plugins",
+        ("group", "name", "description", "entry point", "distribution"),
+        [
+            (group, p.name, describe(p.config_class), p.target, p.distribution)
+            for group, found in registry.plugins.items()
+            for p in found.values()
+        ],
+        justify="left",
+        overflow="fold",
+    )
     if registry.skipped:
-        print_table("skipped", ("group", "name", "entry point", "reason"),
-                    [(s.group, s.name, s.target, s.reason) for s in registry.skipped], justify="left", style="yellow")
+        print_table(
+            "skipped",
+            ("group", "name", "entry point", "reason"),
+            [(s.group, s.name, s.target, s.reason) for s in registry.skipped],
+            justify="left",
+            style="yellow",
+        )
 
 
 COMMAND = Command("plugins", PluginsArgs, plugins)

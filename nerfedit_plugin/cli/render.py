@@ -29,8 +29,16 @@ class RenderArgs:
     """Replace an existing image folder."""
 
 
-def render_run(run, cameras: Path, deformation: Path | None, frame: int | None, out: Path, overwrite: bool,
-               supersample: int = 1, record: Any = None) -> Path:
+def render_run(
+    run,
+    cameras: Path,
+    deformation: Path | None,
+    frame: int | None,
+    out: Path,
+    overwrite: bool,
+    supersample: int = 1,
+    record: Any = None,
+) -> Path:
     """Render ``run``'s field from a transforms file (bent by ``deformation``: one frame, or every frame into
     ``out/frame_NNNN``) into PNGs named like the file's frames, atomically; ``record`` goes to ``out/config.yml``."""
     from nerfedit_plugin.bending.deformation_field import DeformationField
@@ -47,8 +55,7 @@ def render_run(run, cameras: Path, deformation: Path | None, frame: int | None, 
     frames = [frame or 0] if bent is None or frame is not None or bent.n_frames == 1 else range(bent.n_frames)
     with atomic_dir(out, overwrite) as stage:
         for f in frames:
-            images = render_views(field, transforms.cameras, config, deformation=bent, frame=f,
-                                  supersample=supersample)
+            images = render_views(field, transforms.cameras, config, deformation=bent, frame=f, supersample=supersample)
             write_images(images, names, stage if len(frames) == 1 else stage / f"frame_{f:04d}")
         if record is not None:
             write_config(stage / CONFIG, record)
@@ -58,8 +65,16 @@ def render_run(run, cameras: Path, deformation: Path | None, frame: int | None, 
 def render(args: RenderArgs) -> None:
     from nerfedit_plugin.io.run import open_run
 
-    out = render_run(open_run(args.run), args.cameras, args.deformation, args.frame, args.out, args.overwrite,
-                     args.supersample, record=recorded(args))
+    out = render_run(
+        open_run(args.run),
+        args.cameras,
+        args.deformation,
+        args.frame,
+        args.out,
+        args.overwrite,
+        args.supersample,
+        record=recorded(args),
+    )
     console.print(f"renders → {out}")
 
 

@@ -28,12 +28,28 @@ class TrainArgs:
 def train(args: TrainArgs) -> None:
     from nerfedit_plugin.io.run import train_run
 
-    run, log = train_run(args.field, args.field_options, args.data, args.out, overwrite=args.overwrite,
-                         device=args.device, record=recorded(args))
+    run, log = train_run(
+        args.field,
+        args.field_options,
+        args.data,
+        args.out,
+        overwrite=args.overwrite,
+        device=args.device,
+        record=recorded(args),
+    )
     evals = log.get("eval") or []
-    print_table(f"nerfedit train → {run.path}", ("field", "steps", "seconds", "held-out PSNR"), [(
-        run.backend, log.get("steps", 0), f"{log.get('train_seconds', 0.0):.1f}",
-        f"{evals[-1][1]:.2f} dB" if evals else "—")])
+    print_table(
+        f"nerfedit train → {run.path}",
+        ("field", "steps", "seconds", "held-out PSNR"),
+        [
+            (
+                run.backend,
+                log.get("steps", 0),
+                f"{log.get('train_seconds', 0.0):.1f}",
+                f"{evals[-1][1]:.2f} dB" if evals else "—",
+            )
+        ],
+    )
 
 
 COMMAND = Command("train", TrainArgs, train, plugin=("field", FIELDS, "nerf"), records=True)

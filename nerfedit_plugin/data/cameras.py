@@ -48,7 +48,7 @@ class Cameras:
             raise ValueError(f"Cameras: image size must be positive, got {self.width}x{self.height}")
 
     @classmethod
-    def from_fov(cls, c2w: torch.Tensor, width: int, height: int, camera_angle_x: float) -> "Cameras":
+    def from_fov(cls, c2w: torch.Tensor, width: int, height: int, camera_angle_x: float) -> Cameras:
         """Square pixels, centred principal point, horizontal field of view ``camera_angle_x`` (radians):
         ``fx = fy = width / (2 tan(camera_angle_x / 2))`` — the Blender / NeRF-synthetic model."""
         focal = 0.5 * width / math.tan(0.5 * camera_angle_x)
@@ -57,7 +57,7 @@ class Cameras:
     def __len__(self) -> int:
         return self.c2w.shape[0]
 
-    def __getitem__(self, index) -> "Cameras":
+    def __getitem__(self, index) -> Cameras:
         """Subset of cameras (an int keeps the batch dimension)."""
         index = [index] if isinstance(index, int) else index
         return Cameras(
@@ -78,30 +78,45 @@ class Cameras:
         """Horizontal field of view per camera (radians), ``2 atan(width / (2 fx))``."""
         return 2.0 * torch.atan(0.5 * self.width / self.fx)
 
-    def to(self, device: torch.device | str) -> "Cameras":
+    def to(self, device: torch.device | str) -> Cameras:
         return Cameras(
-            self.c2w.to(device), self.fx.to(device), self.fy.to(device), self.cx.to(device), self.cy.to(device),
-            self.width, self.height,
+            self.c2w.to(device),
+            self.fx.to(device),
+            self.fy.to(device),
+            self.cx.to(device),
+            self.cy.to(device),
+            self.width,
+            self.height,
         )
 
-    def downscale(self, factor: int) -> "Cameras":
+    def downscale(self, factor: int) -> Cameras:
         """Cameras of images downscaled by averaging ``factor``×``factor`` pixel blocks: intrinsics ÷ factor,
         size ``floor(size / factor)`` (a partial last block row/column is cropped; that does not move ``c``)."""
         factor = _positive_int(factor, "downscale factor")
         if self.width < factor or self.height < factor:
             raise ValueError(f"downscale factor {factor} exceeds the image size {self.width}x{self.height}")
         return Cameras(
-            self.c2w, self.fx / factor, self.fy / factor, self.cx / factor, self.cy / factor,
-            self.width // factor, self.height // factor,
+            self.c2w,
+            self.fx / factor,
+            self.fy / factor,
+            self.cx / factor,
+            self.cy / factor,
+            self.width // factor,
+            self.height // factor,
         )
 
-    def upscale(self, factor: int) -> "Cameras":
+    def upscale(self, factor: int) -> Cameras:
         """The exact inverse of :meth:`downscale` (used for supersampling): ``downscale(k)`` of the
         ``upscale(k)`` cameras averages ``k``×``k`` stratified sub-pixel samples per pixel."""
         factor = _positive_int(factor, "upscale factor")
         return Cameras(
-            self.c2w, self.fx * factor, self.fy * factor, self.cx * factor, self.cy * factor,
-            self.width * factor, self.height * factor,
+            self.c2w,
+            self.fx * factor,
+            self.fy * factor,
+            self.cx * factor,
+            self.cy * factor,
+            self.width * factor,
+            self.height * factor,
         )
 
 

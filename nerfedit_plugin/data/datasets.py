@@ -265,7 +265,8 @@ def blender_transforms(cameras: Cameras, file_paths: list[str]) -> dict:
     cameras, square pixels and a centred principal point (else use :func:`nerfstudio_transforms`)."""
     fx = cameras.fx[0]
     if not (
-        torch.allclose(cameras.fx, fx) and torch.allclose(cameras.fy, fx)
+        torch.allclose(cameras.fx, fx)
+        and torch.allclose(cameras.fy, fx)
         and torch.allclose(cameras.cx, torch.tensor(cameras.width / 2.0))
         and torch.allclose(cameras.cy, torch.tensor(cameras.height / 2.0))
     ):
@@ -288,8 +289,13 @@ def nerfstudio_transforms(cameras: Cameras, file_paths: list[str]) -> dict:
         frame = {"file_path": path, "transform_matrix": matrix.tolist()}
         frame.update({k: v for k, v, v0 in zip(keys, row, values[0]) if v != v0})
         frames.append(frame)
-    return {"camera_model": "OPENCV", **dict(zip(keys, values[0])), "w": cameras.width, "h": cameras.height,
-            "frames": frames}
+    return {
+        "camera_model": "OPENCV",
+        **dict(zip(keys, values[0])),
+        "w": cameras.width,
+        "h": cameras.height,
+        "frames": frames,
+    }
 
 
 # ---- datasets --------------------------------------------------------------------------------------------------
@@ -313,11 +319,16 @@ class Dataset:
     def __len__(self) -> int:
         return len(self.cameras)
 
-    def to(self, device: torch.device | str) -> "Dataset":
+    def to(self, device: torch.device | str) -> Dataset:
         alpha = None if self.alpha is None else self.alpha.to(device)
         return Dataset(
-            self.images.to(device), self.cameras.to(device), self.split, self.image_paths, self.background,
-            self.scene_bbox.to(device), alpha,
+            self.images.to(device),
+            self.cameras.to(device),
+            self.split,
+            self.image_paths,
+            self.background,
+            self.scene_bbox.to(device),
+            alpha,
         )
 
 

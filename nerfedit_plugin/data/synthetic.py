@@ -19,13 +19,13 @@ from typing import Literal
 import numpy as np
 import torch
 
-from nerfedit_plugin.io.atomic import atomic_dir
-from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
 from nerfedit_plugin.config import write_config
-from nerfedit_plugin.data.datasets import SPLITS, block_mean, blender_transforms, read_transforms, write_rgba
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
+from nerfedit_plugin.data.datasets import SPLITS, blender_transforms, block_mean, read_transforms, write_rgba
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.atomic import atomic_dir
 
 RAYS_PER_CHUNK = 1 << 21
 """Rays cast per batch of cameras (bounds memory; few large torch ops run faster than many small ones)."""

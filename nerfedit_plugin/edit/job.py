@@ -11,17 +11,17 @@ import dataclasses
 import json
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
-from nerfedit_plugin.io.atomic import atomic_dir
-from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.edit.deformer import DeformerConfig
-from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy
+from nerfedit_plugin.edit.spec import load_edit_spec
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.timing import Stopwatch
 
 
@@ -70,7 +70,11 @@ def run_edit(
         with clock.stage("lift"):
             lifted, reports = Lift(proxy, rest, lift, lift_config, deformer=model, edit=spec)(frames)
         with clock.stage("write"):
-            names = ["deformed_mesh.ply"] if len(frames) == 1 else [f"deformed_mesh_{i:04d}.ply" for i in range(len(frames))]
+            names = (
+                ["deformed_mesh.ply"]
+                if len(frames) == 1
+                else [f"deformed_mesh_{i:04d}.ply" for i in range(len(frames))]
+            )
             for name, positions in zip(names, frames):
                 rest.with_vertices(positions).save(stage / name)
             DeformationField(proxy.vertices, proxy.tets, lifted).save(stage / "deformation.npz")

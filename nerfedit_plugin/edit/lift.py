@@ -18,14 +18,14 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.edit.deformer import Deformer
+from nerfedit_plugin.edit.proxy import TetProxy
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
+from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
-from nerfedit_plugin.edit.proxy import TetProxy
 
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse
 
-from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these lived here before geometry.tets)
@@ -33,6 +32,7 @@ from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these l
     tet_signed_volumes,
 )
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
+from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.timing import Stopwatch
 
 PROXY_FORMAT = 1
@@ -126,7 +126,7 @@ class TetProxy:
             )
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "TetProxy":
+    def load(cls, path: str | os.PathLike) -> TetProxy:
         """Read a file written by :meth:`save`; a missing, foreign or corrupt file raises :class:`NerfEditError`."""
         path = Path(path)
         if not path.is_file():
@@ -156,10 +156,15 @@ class TetProxy:
     def _check(self, where: str) -> None:
         n, k = len(self.vertices), len(self.tets)
         ok = (
-            self.vertices.ndim == 2 and self.vertices.shape[1] == 3
-            and self.tets.ndim == 2 and self.tets.shape[1] == 4 and k > 0
-            and self.tets.min() >= 0 and self.tets.max() < n
-            and self.embed_tets.ndim == 1 and self.embed_bary.shape == (len(self.embed_tets), 4)
+            self.vertices.ndim == 2
+            and self.vertices.shape[1] == 3
+            and self.tets.ndim == 2
+            and self.tets.shape[1] == 4
+            and k > 0
+            and self.tets.min() >= 0
+            and self.tets.max() < n
+            and self.embed_tets.ndim == 1
+            and self.embed_bary.shape == (len(self.embed_tets), 4)
             and (len(self.embed_tets) == 0 or (self.embed_tets.min() >= 0 and self.embed_tets.max() < k))
         )
         if not ok:
@@ -208,7 +213,12 @@ def build_cage(mesh: SurfaceMesh, offset: float, config: ProxyConfig, times: dic
     ``config.cage_faces`` (stage times added to ``times``)."""
     vertices, faces = _wrap_input(mesh, offset)
     return wrap_and_decimate(
-        vertices, faces, config.wrap_alpha_factor * offset, offset, max_faces=config.cage_faces, preserve_normal=True,
+        vertices,
+        faces,
+        config.wrap_alpha_factor * offset,
+        offset,
+        max_faces=config.cage_faces,
+        preserve_normal=True,
         clock=Stopwatch(seconds=times, digits=None),
     )
 
@@ -225,8 +235,12 @@ def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, 
 
     with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):
         vertices, tets = pytetwild.tetrahedralize(
-            cage.vertices, cage.faces.astype(np.int32), edge_length_fac=config.edge_length_fac,
-            epsilon=config.epsilon, optimize=True, quiet=True,
+            cage.vertices,
+            cage.faces.astype(np.int32),
+            edge_length_fac=config.edge_length_fac,
+            epsilon=config.epsilon,
+            optimize=True,
+            quiet=True,
         )
     return np.asarray(vertices, dtype=np.float64), np.asarray(tets, dtype=np.int64).reshape(-1, 4)
 
@@ -270,8 +284,13 @@ def build_proxy(
                 margin = float(distance_to_boundary(vertices, tets, mesh.vertices).min()) / offset
             if margin >= config.min_margin:
                 info = {
-                    "offset": offset, "attempts": attempt, "margin": margin, "times": times,
-                    "dropped_degenerate_tets": n_dropped, "cage_faces": len(cage.faces), "format": PROXY_FORMAT,
+                    "offset": offset,
+                    "attempts": attempt,
+                    "margin": margin,
+                    "times": times,
+                    "dropped_degenerate_tets": n_dropped,
+                    "cage_faces": len(cage.faces),
+                    "format": PROXY_FORMAT,
                 }
                 return TetProxy(vertices, tets, cage, embed_tets, embed_bary, info)
         offset *= config.offset_growth

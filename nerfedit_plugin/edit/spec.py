@@ -14,9 +14,10 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 import yaml
@@ -211,8 +212,14 @@ def _parse_selection(obj: Any, source: str, key: str) -> Selection:
     if kind == "sphere":
         check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
         center = vector(value["center"], source, f"{key}.center")
-        return Selection(kind, {"center": center, "radius": number(value["radius"], source, f"{key}.radius", True)}, key)
-    if not isinstance(value, list) or not value or not all(isinstance(i, int) and not isinstance(i, bool) for i in value):
+        return Selection(
+            kind, {"center": center, "radius": number(value["radius"], source, f"{key}.radius", True)}, key
+        )
+    if (
+        not isinstance(value, list)
+        or not value
+        or not all(isinstance(i, int) and not isinstance(i, bool) for i in value)
+    ):
         raise spec_error(source, key, "expected a non-empty list of integer vertex indices")
     return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)
 
@@ -238,7 +245,10 @@ def _parse_transform(obj: Any, source: str, key: str) -> Transform:
 
 
 def parse_edit_spec(
-    data: Any, allowed_keys: Iterable[str] = ("handles",), source: str = "<edit spec>", base_dir: str | os.PathLike = "."
+    data: Any,
+    allowed_keys: Iterable[str] = ("handles",),
+    source: str = "<edit spec>",
+    base_dir: str | os.PathLike = ".",
 ) -> EditSpec:
     """Validate a spec mapping. ``allowed_keys``: the top-level keys the deformer accepts (``frames`` always is)."""
     allowed = set(allowed_keys) | {"frames"}

@@ -88,7 +88,7 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
         raise NotImplementedError(f"{type(self).__name__} is not trained on images (data = {self.data!r})")
 
     @classmethod
-    def from_mesh(cls, mesh: SurfaceMesh, config: FieldConfig | None = None) -> "Field":
+    def from_mesh(cls, mesh: SurfaceMesh, config: FieldConfig | None = None) -> Field:
         """``data = "mesh"`` fields: build the field from a (vertex-coloured) mesh; nothing to fit."""
         raise NotImplementedError(f"{cls.__name__} is not built from a mesh (data = {cls.data!r})")
 
@@ -98,8 +98,14 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
         save_field(self, path, registry)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, registry: Registry | None = None, *, backend: str | None = None,
-             device: torch.device | str = "cpu") -> "Field":
+    def load(
+        cls,
+        path: str | os.PathLike,
+        registry: Registry | None = None,
+        *,
+        backend: str | None = None,
+        device: torch.device | str = "cpu",
+    ) -> Field:
         """Read a checkpoint written by :meth:`save`; ``Field.load`` takes any backend, ``Backend.load`` only its
         own. A checkpoint of another backend, a missing or a corrupt file raises NerfEditError naming the file."""
         return load_field(path, registry, backend=backend, expected=None if cls is Field else cls, device=device)

@@ -65,7 +65,7 @@ class DenseGrid(torch.nn.Module):
         pair = torch.stack([1.0 - frac, frac], dim=1)  # (M, 2, 3)
         slope = torch.tensor([-1.0, 1.0], device=points.device)[:, None] * (self.resolution / (hi - lo))  # (2, 3)
         weights = [_blend(pair)] + [
-            _blend(torch.cat([pair[..., :a], slope[:, a].expand(len(pair), 2)[..., None], pair[..., a + 1:]], -1))
+            _blend(torch.cat([pair[..., :a], slope[:, a].expand(len(pair), 2)[..., None], pair[..., a + 1 :]], -1))
             for a in range(3)
         ]
         out = torch.bmm(torch.stack(weights, dim=1), F.embedding(rows, self.table))  # (M, 4, channels)

@@ -10,13 +10,14 @@ begins as a plain RGB grid.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 import torch
 
 from nerfedit_plugin.fields.base import Field, FieldConfig
-from nerfedit_plugin.training.trainer import TrainerConfig
 from nerfedit_plugin.fields.encoding import spherical_harmonics
+from nerfedit_plugin.training.trainer import TrainerConfig
 
 
 @dataclasses.dataclass
@@ -56,10 +57,17 @@ class GridFieldConfig(FieldConfig):
     """Optimisation budget and schedule."""
 
     @classmethod
-    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> "GridFieldConfig":
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> GridFieldConfig:
         """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
-        preset = dict(resolution=32, features=4, decoder="mlp", hidden=16, occupancy_resolution=16,
-                      occupancy_every=16, train=TrainerConfig.tiny(seconds))
+        preset = dict(
+            resolution=32,
+            features=4,
+            decoder="mlp",
+            hidden=16,
+            occupancy_resolution=16,
+            occupancy_every=16,
+            train=TrainerConfig.tiny(seconds),
+        )
         return cls(**{**preset, **overrides})
 
 
@@ -73,8 +81,10 @@ def start_resolution(config: Any) -> int:
     start, levels = config.resolution >> len(config.upsample_steps), len(config.upsample_steps)
     occupancy = config.occupancy_resolution
     if start << levels != config.resolution or (occupancy and start % occupancy):
-        raise ValueError(f"{name}: resolution {config.resolution} must be a multiple of 2^{levels} "
-                         f"(len(upsample_steps)) times occupancy_resolution {occupancy}")
+        raise ValueError(
+            f"{name}: resolution {config.resolution} must be a multiple of 2^{levels} "
+            f"(len(upsample_steps)) times occupancy_resolution {occupancy}"
+        )
     return start
 
 

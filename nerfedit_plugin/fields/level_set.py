@@ -3,7 +3,7 @@ a lattice over the scene box, with vertex colours queried from the field."""
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -33,13 +33,15 @@ def extract_level_set(
     lattice = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
     volume = torch.cat([scalar(chunk) for chunk in lattice.split(CHUNK)]).reshape((resolution,) * 3).cpu().numpy()
     if not volume.min() < level < volume.max():
-        raise ValueError(f"extract_mesh: level {level} is outside the range [{volume.min():.3g}, "
-                         f"{volume.max():.3g}] of the field")
+        raise ValueError(
+            f"extract_mesh: level {level} is outside the range [{volume.min():.3g}, {volume.max():.3g}] of the field"
+        )
     spacing = ((hi - lo) / (resolution - 1)).cpu().numpy()
     vertices, faces, normals, _ = marching_cubes(volume, level, spacing=tuple(spacing.tolist()))
     vertices = vertices + lo.cpu().numpy()
     inward = -torch.from_numpy(np.ascontiguousarray(normals)).float().to(lo.device)  # skimage: outward
     points = torch.from_numpy(vertices).float().to(lo.device)
     colors = torch.cat([color(p, d) for p, d in zip(points.split(CHUNK), inward.split(CHUNK))])
-    return SurfaceMesh(vertices.astype(np.float64), faces[:, ::-1].astype(np.int64),
-                       colors.cpu().numpy().astype(np.float64))
+    return SurfaceMesh(
+        vertices.astype(np.float64), faces[:, ::-1].astype(np.int64), colors.cpu().numpy().astype(np.float64)
+    )

@@ -51,11 +51,13 @@ class MeshField(Field):
         self._scene = None
 
     @classmethod
-    def from_mesh(cls, mesh: SurfaceMesh, config: MeshFieldConfig | None = None) -> "MeshField":
+    def from_mesh(cls, mesh: SurfaceMesh, config: MeshFieldConfig | None = None) -> MeshField:
         """The field of ``mesh`` (must have vertex colours), scene box = bbox ± ``config.padding`` × diagonal."""
         config = MeshFieldConfig() if config is None else config
         if mesh.vertex_colors is None:
-            raise NerfEditError("mesh field: the mesh has no vertex colours (see nerfedit_plugin.data.synthetic.colorize)")
+            raise NerfEditError(
+                "mesh field: the mesh has no vertex colours (see nerfedit_plugin.data.synthetic.colorize)"
+            )
         if len(mesh.faces) == 0:
             raise NerfEditError("mesh field: the mesh has no triangles")
         pad = config.padding * mesh.bbox_diagonal

@@ -17,12 +17,12 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.training.trainer import TrainerConfig, train
 from nerfedit_plugin.fields.encoding import DenseGrid
 from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
 from nerfedit_plugin.fields.level_set import extract_level_set
 from nerfedit_plugin.fields.occupancy import OccupancyGrid
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.training.trainer import TrainerConfig, train
 
 
 @dataclasses.dataclass
@@ -47,7 +47,7 @@ class NerfConfig(GridFieldConfig):
     """Default density level of :meth:`NerfField.extract_mesh`."""
 
     @classmethod
-    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> "NerfConfig":
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> NerfConfig:
         """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
         return super().tiny(seconds, **{"occupancy_warmup": 48, **overrides})
 
@@ -90,8 +90,9 @@ class NerfField(GridField):
         """Recompute the occupancy grid from the current densities."""
         if self.occupancy is not None:
             config = self.config
-            self.occupancy.update(self.cell_max_density(), config.occupancy_threshold, config.occupancy_dilation,
-                                  config.occupancy_shell)
+            self.occupancy.update(
+                self.cell_max_density(), config.occupancy_threshold, config.occupancy_dilation, config.occupancy_shell
+            )
 
     def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
         """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides
@@ -107,8 +108,14 @@ class NerfField(GridField):
 
         if self.occupancy is not None and config.carve and dataset.alpha is not None:
             self.occupancy.carve(dataset.cameras, dataset.alpha.to(self.scene_bbox.device) > 0)
-        log = train(self, dataset, trainer or config.train, param_groups=groups, callback=grid_schedule(self),
-                    eval_dataset=eval_dataset)
+        log = train(
+            self,
+            dataset,
+            trainer or config.train,
+            param_groups=groups,
+            callback=grid_schedule(self),
+            eval_dataset=eval_dataset,
+        )
         self.update_occupancy()
         return log
 
@@ -118,5 +125,10 @@ class NerfField(GridField):
         ``mesh_level``); faces wind counter-clockwise seen from outside (low density); vertex colours are the
         field's RGB at each vertex seen along the inward normal."""
         level = self.config.mesh_level if level is None else float(level)
-        return extract_level_set(lambda x: self.query(x, torch.zeros_like(x))[0], lambda x, d: self.query(x, d)[1],
-                                 self.scene_bbox, resolution, level)
+        return extract_level_set(
+            lambda x: self.query(x, torch.zeros_like(x))[0],
+            lambda x, d: self.query(x, d)[1],
+            self.scene_bbox,
+            resolution,
+            level,
+        )

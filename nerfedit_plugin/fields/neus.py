@@ -21,12 +21,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.training.trainer import TrainerConfig, train
 from nerfedit_plugin.fields.encoding import DenseGrid
 from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
 from nerfedit_plugin.fields.level_set import extract_level_set
 from nerfedit_plugin.fields.occupancy import OccupancyGrid
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.training.trainer import TrainerConfig, train
 
 
 @dataclasses.dataclass
@@ -59,15 +59,13 @@ class NeusConfig(GridFieldConfig):
     """Adam learning rate of the grid (SDF in cells, colour logits)."""
     lr_sharpness: float = 1e-2
     """Adam learning rate of ``log_s``."""
-    train: TrainerConfig = dataclasses.field(
-        default_factory=lambda: TrainerConfig(batch_rays=2048, n_samples=64))
+    train: TrainerConfig = dataclasses.field(default_factory=lambda: TrainerConfig(batch_rays=2048, n_samples=64))
     """Optimisation budget and schedule (the occupancy band makes 64 samples per ray enough)."""
 
     @classmethod
-    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> "NeusConfig":
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> NeusConfig:
         """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
-        return super().tiny(seconds, **{"upsample_steps": (), "occupancy_warmup": 16, "anneal_steps": 20,
-                                        **overrides})
+        return super().tiny(seconds, **{"upsample_steps": (), "occupancy_warmup": 16, "anneal_steps": 20, **overrides})
 
 
 class NeusField(GridField):
@@ -175,9 +173,11 @@ class NeusField(GridField):
             return config.eikonal_weight * self.eikonal_loss(self._eikonal_points(config.eikonal_points, generator))
 
         def groups() -> list[dict]:
-            return [{"params": list(self.grid.parameters()), "lr": config.lr_grid},
-                    {"params": [self.log_sharpness], "lr": config.lr_sharpness},
-                    {"params": list(self.color.parameters()), "lr": config.lr_mlp}]
+            return [
+                {"params": list(self.grid.parameters()), "lr": config.lr_grid},
+                {"params": [self.log_sharpness], "lr": config.lr_sharpness},
+                {"params": list(self.color.parameters()), "lr": config.lr_mlp},
+            ]
 
         if dataset.alpha is not None:
             coverage = dataset.alpha.to(self.scene_bbox.device) > 0
@@ -185,9 +185,16 @@ class NeusField(GridField):
                 self.init_from_hull(dataset.cameras, coverage)
             if self.occupancy is not None and config.carve:
                 self.occupancy.carve(dataset.cameras, coverage)
-        log = train(self, dataset, trainer or config.train, param_groups=groups, regularizer=regularizer,
-                    callback=grid_schedule(self), cos_anneal=lambda step: min(1.0, step / max(config.anneal_steps, 1)),
-                    eval_dataset=eval_dataset)
+        log = train(
+            self,
+            dataset,
+            trainer or config.train,
+            param_groups=groups,
+            regularizer=regularizer,
+            callback=grid_schedule(self),
+            cos_anneal=lambda step: min(1.0, step / max(config.anneal_steps, 1)),
+            eval_dataset=eval_dataset,
+        )
         self.update_occupancy()
         return log
 
@@ -196,5 +203,10 @@ class NeusField(GridField):
         ``scene_bbox``; faces wind counter-clockwise seen from outside; vertex colours are the field's RGB at each
         vertex seen along the inward normal."""
         level = 0.0 if level is None else float(level)
-        return extract_level_set(lambda x: -self.query(x, torch.zeros_like(x))[0], lambda x, d: self.query(x, d)[1],
-                                 self.scene_bbox, resolution, -level)
+        return extract_level_set(
+            lambda x: -self.query(x, torch.zeros_like(x))[0],
+            lambda x, d: self.query(x, d)[1],
+            self.scene_bbox,
+            resolution,
+            -level,
+        )

@@ -47,8 +47,10 @@ class OccupancyGrid(torch.nn.Module):
         this grid learns an opaque shell and never needs the interior.
         """
         if cell_bound.shape != self.mask.shape:
-            raise ValueError(f"OccupancyGrid.update: expected bounds of shape {tuple(self.mask.shape)}, "
-                             f"got {tuple(cell_bound.shape)}")
+            raise ValueError(
+                f"OccupancyGrid.update: expected bounds of shape {tuple(self.mask.shape)}, "
+                f"got {tuple(cell_bound.shape)}"
+            )
         dense = (cell_bound > threshold).float()[None, None]
         mask = F.max_pool3d(dense, 2 * dilation + 1, stride=1, padding=dilation) > 0 if dilation > 0 else dense > 0
         if shell > 0:

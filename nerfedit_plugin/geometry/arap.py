@@ -109,21 +109,39 @@ def fit_rotations(stacked: np.ndarray) -> np.ndarray:
     n01, n02, n03, n12, n13, n23 = off
     s0, s1, s2, s3, s4, s5, k0, k1, k2, k3, k4, k5 = _minors_4x4(m00, m11, m22, m33, *off)
     columns = (  # columns[j] = column j of adj(N − λI) = (Π gaps) q q_j
-        (m11 * k5 - n12 * k4 + n13 * k3, -n01 * k5 + n12 * k2 - n13 * k1,
-         n01 * k4 - m11 * k2 + n13 * k0, -n01 * k3 + m11 * k1 - n12 * k0),
-        (-n01 * k5 + n02 * k4 - n03 * k3, m00 * k5 - n02 * k2 + n03 * k1,
-         -m00 * k4 + n01 * k2 - n03 * k0, m00 * k3 - n01 * k1 + n02 * k0),
-        (n13 * s5 - n23 * s4 + m33 * s3, -n03 * s5 + n23 * s2 - m33 * s1,
-         n03 * s4 - n13 * s2 + m33 * s0, -n03 * s3 + n13 * s1 - n23 * s0),
-        (-n12 * s5 + m22 * s4 - n23 * s3, n02 * s5 - m22 * s2 + n23 * s1,
-         -n02 * s4 + n12 * s2 - n23 * s0, n02 * s3 - n12 * s1 + m22 * s0),
+        (
+            m11 * k5 - n12 * k4 + n13 * k3,
+            -n01 * k5 + n12 * k2 - n13 * k1,
+            n01 * k4 - m11 * k2 + n13 * k0,
+            -n01 * k3 + m11 * k1 - n12 * k0,
+        ),
+        (
+            -n01 * k5 + n02 * k4 - n03 * k3,
+            m00 * k5 - n02 * k2 + n03 * k1,
+            -m00 * k4 + n01 * k2 - n03 * k0,
+            m00 * k3 - n01 * k1 + n02 * k0,
+        ),
+        (
+            n13 * s5 - n23 * s4 + m33 * s3,
+            -n03 * s5 + n23 * s2 - m33 * s1,
+            n03 * s4 - n13 * s2 + m33 * s0,
+            -n03 * s3 + n13 * s1 - n23 * s0,
+        ),
+        (
+            -n12 * s5 + m22 * s4 - n23 * s3,
+            n02 * s5 - m22 * s2 + n23 * s1,
+            -n02 * s4 + n12 * s2 - n23 * s0,
+            n02 * s3 - n12 * s1 + m22 * s0,
+        ),
     )
     size = [np.abs(columns[j][j]) for j in range(4)]
     take1, take3 = size[1] > size[0], size[3] > size[2]
     size01, size23 = np.maximum(size[0], size[1]), np.maximum(size[2], size[3])
     take23 = size23 > size01
-    q = [np.where(take23, np.where(take3, columns[3][i], columns[2][i]), np.where(take1, columns[1][i], columns[0][i]))
-         for i in range(4)]
+    q = [
+        np.where(take23, np.where(take3, columns[3][i], columns[2][i]), np.where(take1, columns[1][i], columns[0][i]))
+        for i in range(4)
+    ]
     ill = ~empty & (np.maximum(size01, size23) < 1e-4)  # |adj_jj| ≥ (smallest gap)·q_j²·O(1)
     q[0] = np.where(empty, 1.0, q[0])
     for i in (1, 2, 3):
@@ -143,10 +161,20 @@ def fit_rotations(stacked: np.ndarray) -> np.ndarray:
 
 def _minors_4x4(m00, m11, m22, m33, n01, n02, n03, n12, n13, n23):
     """The 2×2 minors of rows (0,1) and rows (2,3) of a symmetric 4×4 matrix (Laplace expansion of adj and det)."""
-    return (m00 * m11 - n01 * n01, m00 * n12 - n01 * n02, m00 * n13 - n01 * n03,
-            n01 * n12 - m11 * n02, n01 * n13 - m11 * n03, n02 * n13 - n12 * n03,
-            n02 * n13 - n03 * n12, n02 * n23 - n03 * m22, n02 * m33 - n03 * n23,
-            n12 * n23 - n13 * m22, n12 * m33 - n13 * n23, m22 * m33 - n23 * n23)
+    return (
+        m00 * m11 - n01 * n01,
+        m00 * n12 - n01 * n02,
+        m00 * n13 - n01 * n03,
+        n01 * n12 - m11 * n02,
+        n01 * n13 - m11 * n03,
+        n02 * n13 - n12 * n03,
+        n02 * n13 - n03 * n12,
+        n02 * n23 - n03 * m22,
+        n02 * m33 - n03 * n23,
+        n12 * n23 - n13 * m22,
+        n12 * m33 - n13 * n23,
+        m22 * m33 - n23 * n23,
+    )
 
 
 def fit_rotations_numpy(stacked: np.ndarray) -> np.ndarray:
@@ -286,8 +314,10 @@ class ArapSolver:
         self._k = _covariance_scatter(gw[:, None] * edges, groups, gi, gj, n, self.n_groups)  # column a·G + g
         self._kt = self._k.T.tocsr()
         lap = sp.coo_matrix(
-            (np.concatenate([-weights, -weights, weights, weights], axis=None),
-             (np.concatenate([ei, ej, ei, ej], axis=None), np.concatenate([ej, ei, ei, ej], axis=None))),
+            (
+                np.concatenate([-weights, -weights, weights, weights], axis=None),
+                (np.concatenate([ei, ej, ei, ej], axis=None), np.concatenate([ej, ei, ei, ej], axis=None)),
+            ),
             shape=(n, n),
         ).tocsr()
         self._laplacian = (multiplicity * lap).tocsr()

@@ -49,11 +49,11 @@ class SurfaceMesh:
         """Length of the diagonal of the vertices' axis-aligned bounding box (float)."""
         return float(np.linalg.norm(self.vertices.max(0) - self.vertices.min(0)))
 
-    def with_vertices(self, vertices: np.ndarray) -> "SurfaceMesh":
+    def with_vertices(self, vertices: np.ndarray) -> SurfaceMesh:
         """vertices (V,3) float → a SurfaceMesh with the same connectivity and colours, new positions."""
         return SurfaceMesh(vertices, self.faces, self.vertex_colors)
 
-    def largest_component(self) -> "SurfaceMesh":
+    def largest_component(self) -> SurfaceMesh:
         """→ the connected part (through shared vertices) with the most faces, as a SurfaceMesh of ``V' ≤ V``
         vertices; unused vertices dropped, the order of the kept ones unchanged."""
         from scipy.sparse import coo_matrix
@@ -78,7 +78,7 @@ class SurfaceMesh:
         return trimesh.Trimesh(self.vertices, self.faces, vertex_colors=self.vertex_colors, process=False)
 
     @classmethod
-    def from_trimesh(cls, mesh) -> "SurfaceMesh":
+    def from_trimesh(cls, mesh) -> SurfaceMesh:
         colors = None
         visual = getattr(mesh, "visual", None)
         if visual is not None and getattr(visual, "kind", None) == "vertex":
@@ -97,13 +97,13 @@ class SurfaceMesh:
         return mesh
 
     @classmethod
-    def from_open3d(cls, mesh) -> "SurfaceMesh":
+    def from_open3d(cls, mesh) -> SurfaceMesh:
         colors = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else None
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.triangles), colors)
 
     # ---- files -------------------------------------------------------------------------------
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "SurfaceMesh":
+    def load(cls, path: str | os.PathLike) -> SurfaceMesh:
         """Read PLY/OBJ/OFF/GLB/STL keeping the file's vertex order; ``sample:bunny`` names a shipped sample."""
         import trimesh
 

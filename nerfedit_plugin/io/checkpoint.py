@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.config import from_plain, to_plain
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.registry import FIELDS, Registry, discover
 
 if TYPE_CHECKING:
@@ -92,8 +92,9 @@ def load_field(
         raise NerfEditError(f"{path}: {exc}") from exc
     target = config_class()._target
     if expected is not None and not issubclass(target, expected):
-        raise NerfEditError(f"{path}: checkpoint of the {name!r} field backend ({target.__name__}), "
-                            f"not {expected.__name__}")
+        raise NerfEditError(
+            f"{path}: checkpoint of the {name!r} field backend ({target.__name__}), not {expected.__name__}"
+        )
     try:
         config = from_plain(config_class, payload["config"])
         field = config.setup(scene_bbox=torch.tensor(payload["scene_bbox"], dtype=torch.float32))

@@ -159,8 +159,15 @@ def train_run(
     return open_run(out), log
 
 
-def extract_mesh(run: Run, resolution: int = 256, level: float | None = None, *, largest_component: bool = True,
-                 overwrite: bool = False, device: torch.device | str | None = None) -> Path:
+def extract_mesh(
+    run: Run,
+    resolution: int = 256,
+    level: float | None = None,
+    *,
+    largest_component: bool = True,
+    overwrite: bool = False,
+    device: torch.device | str | None = None,
+) -> Path:
     """Extract the run's mesh (marching cubes for trained fields; the mesh itself for mesh fields) into
     ``RUN_DIR/mesh.ply``, atomically; an existing mesh is replaced only with ``overwrite``, except that a mesh
     field's run, which has its mesh from :func:`train_run`, is left as it is (nothing to extract). ``largest_component``

@@ -22,4 +22,4 @@ def sample_mesh_path(name: str) -> Path:
 def resolve_mesh_path(path: str | Path) -> Path:
     """``sample:NAME`` → the sample's file; anything else is returned as a Path."""
     text = str(path)
-    return sample_mesh_path(text[len(PREFIX):]) if text.startswith(PREFIX) else Path(path)
+    return sample_mesh_path(text[len(PREFIX) :]) if text.startswith(PREFIX) else Path(path)

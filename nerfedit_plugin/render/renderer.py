@@ -162,9 +162,17 @@ def render_rays(
     for start in range(0, n, segment):
         if len(active) == 0:
             break
-        ts = t.index_select(0, active)[:, start:start + segment]
-        alpha, colors = _samples(field, origins.index_select(0, active), directions.index_select(0, active), ts,
-                                 delta.index_select(0, active), config, deformation, frame)
+        ts = t.index_select(0, active)[:, start : start + segment]
+        alpha, colors = _samples(
+            field,
+            origins.index_select(0, active),
+            directions.index_select(0, active),
+            ts,
+            delta.index_select(0, active),
+            config,
+            deformation,
+            frame,
+        )
         inner = torch.cumprod(torch.cat([alpha.new_ones(len(active), 1), 1.0 - alpha], dim=1), dim=1)
         weights = alpha * inner[:, :-1] * transmittance.index_select(0, active)[:, None]
         color_sum = color_sum.index_add(0, active, (weights[..., None] * colors).sum(1))
@@ -233,7 +241,7 @@ def _first_inside(field: Field, origins, directions, t, deformation, frame) -> t
     for start in range(0, n, OPAQUE_SEGMENT):
         if len(active) == 0:
             break
-        segment = t.index_select(0, active)[:, start:start + OPAQUE_SEGMENT]
+        segment = t.index_select(0, active)[:, start : start + OPAQUE_SEGMENT]
         o, d = origins.index_select(0, active), directions.index_select(0, active)
         points = (o[:, None] + segment[..., None] * d[:, None]).reshape(-1, 3)
         inside = _inside(field, points, deformation, frame).view(segment.shape)
@@ -292,12 +300,18 @@ def render_image(
     origins, directions = generate_rays(fine, index)
     origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
     device = field.scene_bbox.device
-    rgb = torch.cat([
-        render_rays(
-            field, origins[start:start + config.chunk].to(device), directions[start:start + config.chunk].to(device),
-            config, deformation=deformation, frame=frame,
-        ).rgb
-        for start in range(0, len(origins), config.chunk)
-    ])
+    rgb = torch.cat(
+        [
+            render_rays(
+                field,
+                origins[start : start + config.chunk].to(device),
+                directions[start : start + config.chunk].to(device),
+                config,
+                deformation=deformation,
+                frame=frame,
+            ).rgb
+            for start in range(0, len(origins), config.chunk)
+        ]
+    )
     s, h, w = supersample, cameras.height, cameras.width
     return rgb.view(h, s, w, s, 3).mean((1, 3))

@@ -9,16 +9,16 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
 
-from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
 from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.data.datasets import to_uint8
 from nerfedit_plugin.fields.base import Field
+from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
 from nerfedit_plugin.render.renderer import RenderConfig, render_image
 
 
@@ -45,15 +45,17 @@ def render_views(
     with Progress(transient=True, disable=not progress) as bar:
         task = bar.add_task("rendering", total=len(cameras))
         for i in range(len(cameras)):
-            image = render_image(field, cameras, i, config, deformation=deformation, frame=frame,
-                                 supersample=supersample)
+            image = render_image(
+                field, cameras, i, config, deformation=deformation, frame=frame, supersample=supersample
+            )
             images.append(image.clamp(0.0, 1.0).cpu().numpy())
             bar.advance(task)
     return images
 
 
-def write_images(images: Sequence[np.ndarray], names: Sequence[str], out_dir: str | os.PathLike,
-                 overwrite: bool = False) -> list[Path]:
+def write_images(
+    images: Sequence[np.ndarray], names: Sequence[str], out_dir: str | os.PathLike, overwrite: bool = False
+) -> list[Path]:
     """Write ``images`` as ``out_dir/<name>`` PNGs; the folder is created atomically."""
     import skimage.io
 
@@ -74,8 +76,14 @@ def write_gif(path: str | os.PathLike, images: Sequence[np.ndarray], fps: float 
 
 
 def turntable_cameras(
-    scene_bbox: torch.Tensor, n: int, size: int, *, elevation_degrees: float = 20.0, distance: float = 2.5,
-    fov_degrees: float | None = None, up: Sequence[float] = (0.0, 0.0, 1.0),
+    scene_bbox: torch.Tensor,
+    n: int,
+    size: int,
+    *,
+    elevation_degrees: float = 20.0,
+    distance: float = 2.5,
+    fov_degrees: float | None = None,
+    up: Sequence[float] = (0.0, 0.0, 1.0),
 ) -> Cameras:
     """``n`` cameras on a circle around the centre of ``scene_bbox`` (z up), ``distance`` × the box's half-diagonal
     away, ``elevation_degrees`` above its equator, each ``size``×``size`` pixels; the default field of view frames
@@ -84,8 +92,14 @@ def turntable_cameras(
     center, radius = box.mean(0), float(torch.linalg.norm(box[1] - box[0]) / 2)
     angles = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
     elevation = math.radians(elevation_degrees)
-    ring = torch.stack([torch.cos(angles) * math.cos(elevation), torch.sin(angles) * math.cos(elevation),
-                        torch.full_like(angles, math.sin(elevation))], dim=1)
+    ring = torch.stack(
+        [
+            torch.cos(angles) * math.cos(elevation),
+            torch.sin(angles) * math.cos(elevation),
+            torch.full_like(angles, math.sin(elevation)),
+        ],
+        dim=1,
+    )
     eyes = center + distance * radius * ring
     fov = math.radians(fov_degrees) if fov_degrees is not None else 2.0 * math.asin(1.0 / distance)
     return Cameras.from_fov(look_at(eyes, center.expand(n, 3), up), size, size, fov)

@@ -58,8 +58,10 @@ def parametrize_with_checks(configs: Any, **kwargs: Any):
         elif isinstance(config, FieldConfig):
             checks = field_checks(config, **kwargs)
         else:
-            raise TypeError(f"parametrize_with_checks: expected a DeformerConfig or FieldConfig instance (or a list "
-                            f"of them), got {config!r}")
+            raise TypeError(
+                f"parametrize_with_checks: expected a DeformerConfig or FieldConfig instance (or a list "
+                f"of them), got {config!r}"
+            )
         prefix = config_id(config)
         for name, check in checks:
             params.append(check)

@@ -85,11 +85,21 @@ def default_edit(rest: SurfaceMesh) -> dict:
     z_low, z_high = lo[2] + 0.25 * ext[2], hi[2] - 0.25 * ext[2]
     return {
         "handles": [
-            {"select": {"box": {"min": [lo[0] - big, lo[1] - big, lo[2] - big],
-                                "max": [hi[0] + big, hi[1] + big, z_low]}}, "fixed": True},
-            {"select": {"box": {"min": [lo[0] - big, lo[1] - big, z_high],
-                                "max": [hi[0] + big, hi[1] + big, hi[2] + big]}},
-             "transform": {"translate": [0.15 * ext[0], 0.0, 0.05 * ext[2]], "rotate": {"axis": [0, 1, 0], "degrees": 20}}},
+            {
+                "select": {
+                    "box": {"min": [lo[0] - big, lo[1] - big, lo[2] - big], "max": [hi[0] + big, hi[1] + big, z_low]}
+                },
+                "fixed": True,
+            },
+            {
+                "select": {
+                    "box": {"min": [lo[0] - big, lo[1] - big, z_high], "max": [hi[0] + big, hi[1] + big, hi[2] + big]}
+                },
+                "transform": {
+                    "translate": [0.15 * ext[0], 0.0, 0.05 * ext[2]],
+                    "rotate": {"axis": [0, 1, 0], "degrees": 20},
+                },
+            },
         ],
         "frames": 2,
     }
@@ -104,7 +114,9 @@ def _resolve(config: Any, rest: SurfaceMesh | None, edit: dict | None) -> tuple[
     rest = default_mesh() if rest is None else rest
     if edit is None:
         if "handles" not in config._target.spec_keys:
-            raise ValueError(f"{_name(config)}: its spec has no 'handles' key, so the kit has no default edit: pass edit=")
+            raise ValueError(
+                f"{_name(config)}: its spec has no 'handles' key, so the kit has no default edit: pass edit="
+            )
         edit = default_edit(rest)
     return rest, edit
 
@@ -152,7 +164,8 @@ def _variant(config: Any, rest: SurfaceMesh, edit: dict, given: dict | None, hoo
     if given is not None:
         return given
     found = {"identity_edit": config._target.identity_edit, "rigid_edit": config._target.rigid_edit}[hook](
-        copy.deepcopy(edit), rest)
+        copy.deepcopy(edit), rest
+    )
     if found is None and isinstance(edit.get("handles"), list):
         found = derive(edit, rest)
     if found is None:
@@ -209,8 +222,14 @@ def _field_docstrings(cls: type) -> set[str]:
             continue
         body = ast.parse(source).body[0].body
         for stmt, nxt in zip(body, body[1:]):
-            if (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name) and isinstance(nxt, ast.Expr)
-                    and isinstance(nxt.value, ast.Constant) and isinstance(nxt.value.value, str) and nxt.value.value.strip()):
+            if (
+                isinstance(stmt, ast.AnnAssign)
+                and isinstance(stmt.target, ast.Name)
+                and isinstance(nxt, ast.Expr)
+                and isinstance(nxt.value, ast.Constant)
+                and isinstance(nxt.value.value, str)
+                and nxt.value.value.strip()
+            ):
                 documented.add(stmt.target.id)
     return documented
 
@@ -232,10 +251,16 @@ def check_config(config: Any) -> None:
     """Config contract: a DeformerConfig dataclass with a docstring per field, ``_target`` a Deformer subclass that
     ``setup()`` builds, valid ``spec_keys``, and a lossless round trip through :func:`to_plain` (YAML-safe)."""
     name = _name(config)
-    assert dataclasses.is_dataclass(config) and not isinstance(config, type), f"{name}: config must be a dataclass instance"
-    assert isinstance(config, DeformerConfig), f"{name}: config must subclass nerfedit_plugin.edit.deformer.DeformerConfig"
+    assert dataclasses.is_dataclass(config) and not isinstance(config, type), (
+        f"{name}: config must be a dataclass instance"
+    )
+    assert isinstance(config, DeformerConfig), (
+        f"{name}: config must subclass nerfedit_plugin.edit.deformer.DeformerConfig"
+    )
     target = config._target
-    assert isinstance(target, type) and issubclass(target, Deformer), f"{name}._target is {target!r}, not a Deformer subclass"
+    assert isinstance(target, type) and issubclass(target, Deformer), (
+        f"{name}._target is {target!r}, not a Deformer subclass"
+    )
     deformer = config.setup()
     assert isinstance(deformer, target), f"{name}.setup() returned {type(deformer).__name__}, not {target.__name__}"
     keys = target.spec_keys
@@ -262,7 +287,8 @@ def check_documented_round_trip(config: Any) -> None:
     rebuilt = to_plain(from_plain(type(config), plain))
     assert rebuilt == plain, f"{name}: config does not round-trip through to_plain: {plain!r} -> {rebuilt!r}"
     assert _resolve_dotted(plain["_target"]) is config._target, (
-        f"{name}: _target {plain['_target']!r} does not import back")
+        f"{name}: _target {plain['_target']!r} does not import back"
+    )
 
 
 def check_output(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None) -> None:
@@ -270,10 +296,14 @@ def check_output(config: Any, rest: SurfaceMesh | None = None, edit: dict | None
     rest, edit = _resolve(config, rest, edit)
     out = _frames(config, rest, edit, base_dir, "edit")
     moved = np.linalg.norm(out - rest.vertices, axis=2).max()
-    assert moved > 1e-6 * rest.bbox_diagonal, f"{_name(config)}: the edit moved nothing (pass an edit that moves something)"
+    assert moved > 1e-6 * rest.bbox_diagonal, (
+        f"{_name(config)}: the edit moved nothing (pass an edit that moves something)"
+    )
 
 
-def check_deterministic(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None) -> None:
+def check_deterministic(
+    config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None
+) -> None:
     """Two fresh binds, and a second bind of the same instance, give bitwise identical frames."""
     rest, edit = _resolve(config, rest, edit)
     first, _ = _bind(config, _copy_mesh(rest), edit, base_dir)
@@ -282,11 +312,20 @@ def check_deterministic(config: Any, rest: SurfaceMesh | None = None, edit: dict
     assert np.array_equal(a, b), f"{_name(config)}: two binds of the same edit differ by {np.abs(a - b).max():.3g}"
     _bind(config, _copy_mesh(rest), edit, base_dir, deformer=first)
     c = first.deform()
-    assert np.array_equal(a, c), f"{_name(config)}: re-binding the same instance changed the output by {np.abs(a - c).max():.3g}"
+    assert np.array_equal(a, c), (
+        f"{_name(config)}: re-binding the same instance changed the output by {np.abs(a - c).max():.3g}"
+    )
 
 
-def check_identity(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-                   identity_edit: dict | None = None, tol: float = 1e-6) -> None:
+def check_identity(
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    identity_edit: dict | None = None,
+    tol: float = 1e-6,
+) -> None:
     """The identity variant of the edit returns the rest vertices (every frame, same order) within ``tol`` × bbox."""
     rest, edit = _resolve(config, rest, edit)
     variant = _variant(config, rest, edit, identity_edit, "identity_edit", identity_handles)
@@ -297,8 +336,15 @@ def check_identity(config: Any, rest: SurfaceMesh | None = None, edit: dict | No
     )
 
 
-def check_rigid(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-                rigid_edit: dict | None = None, rigid_tol: float = 1e-4) -> None:
+def check_rigid(
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    rigid_edit: dict | None = None,
+    rigid_tol: float = 1e-4,
+) -> None:
     """The rigid variant moves the whole mesh by one rigid motion per frame (Procrustes residual ≤ ``rigid_tol`` × bbox)."""
     rest, edit = _resolve(config, rest, edit)
     variant = _variant(config, rest, edit, rigid_edit, "rigid_edit", rigid_handles)
@@ -310,7 +356,9 @@ def check_rigid(config: Any, rest: SurfaceMesh | None = None, edit: dict | None 
             f"{_name(config)}: rigid edit, frame {f}: not a rigid motion of the rest mesh "
             f"(Procrustes residual {residual:.3g} > {rigid_tol:g} × bbox {diag:.3g})"
         )
-    assert np.linalg.norm(out[-1] - rest.vertices, axis=1).max() > 1e-3 * diag, f"{_name(config)}: rigid edit moved nothing"
+    assert np.linalg.norm(out[-1] - rest.vertices, axis=1).max() > 1e-3 * diag, (
+        f"{_name(config)}: rigid edit moved nothing"
+    )
 
 
 def _edge_to_pair_ratio(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -323,7 +371,9 @@ def _edge_to_pair_ratio(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.median(lengths) / max(np.median(spread), 1e-300))
 
 
-def check_vertex_order(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None) -> None:
+def check_vertex_order(
+    config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None
+) -> None:
     """Row i of every output frame is the image of rest vertex i: the rest faces still join nearby points.
 
     (Identity and rigid checks test the order exactly; this one covers the general edit, where a reordering
@@ -378,8 +428,14 @@ def malformed_edits(edit: dict, rest: SurfaceMesh, spec_keys: Iterable[str], bas
     return cases
 
 
-def check_malformed(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-                    bad_edits: Iterable[dict] = ()) -> None:
+def check_malformed(
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    bad_edits: Iterable[dict] = (),
+) -> None:
     """Parsing + ``bind`` raise :class:`NerfEditError` (not another exception, not silence) for every variant from
     :func:`malformed_edits` and every spec in ``bad_edits``."""
     rest, edit = _resolve(config, rest, edit)
@@ -396,8 +452,9 @@ def check_malformed(config: Any, rest: SurfaceMesh | None = None, edit: dict | N
         raise AssertionError(f"{_name(config)}: {what}: accepted (expected NerfEditError from parsing or bind)")
 
 
-def check_deform_points(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-                        tol: float = 1e-6) -> None:
+def check_deform_points(
+    config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None, tol: float = 1e-6
+) -> None:
     """Where ``supports_points()``: ``deform_points(rest vertices, f)`` equals ``deform()[f]`` within ``tol`` × bbox,
     and arbitrary points give finite ``(M, 3)`` float64 without being modified."""
     rest, edit = _resolve(config, rest, edit)
@@ -417,7 +474,9 @@ def check_deform_points(config: Any, rest: SurfaceMesh | None = None, edit: dict
             f"expected {points.shape} float64"
         )
         err = np.linalg.norm(mapped - out[f], axis=1).max()
-        assert err <= tol * rest.bbox_diagonal, f"{name}: frame {f}: deform_points(rest) differs from deform() by {err:.3g}"
+        assert err <= tol * rest.bbox_diagonal, (
+            f"{name}: frame {f}: deform_points(rest) differs from deform() by {err:.3g}"
+        )
         moved = deformer.deform_points(probe.copy(), f)
         assert moved.shape == probe.shape and np.isfinite(moved).all(), (
             f"{name}: frame {f}: deform_points on points around the mesh gave shape {moved.shape} or non-finite values"
@@ -456,41 +515,92 @@ def select_checks(checks: Iterable[str], skip: Iterable[str]) -> list[str]:
     return [name for name in checks if name not in skip]
 
 
-def run_check(name: str, config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-              identity_edit: dict | None = None, rigid_edit: dict | None = None, bad_edits: Iterable[dict] = (),
-              tol: float = 1e-6, rigid_tol: float = 1e-4) -> None:
+def run_check(
+    name: str,
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    identity_edit: dict | None = None,
+    rigid_edit: dict | None = None,
+    bad_edits: Iterable[dict] = (),
+    tol: float = 1e-6,
+    rigid_tol: float = 1e-4,
+) -> None:
     """Run the check ``name`` of :data:`CHECKS` with :func:`check_deformer`'s arguments (it takes those it uses)."""
     if name == "config":
         CHECKS[name](config)
         return
-    given = {"identity_edit": identity_edit, "rigid_edit": rigid_edit, "bad_edits": list(bad_edits), "tol": tol,
-             "rigid_tol": rigid_tol}
+    given = {
+        "identity_edit": identity_edit,
+        "rigid_edit": rigid_edit,
+        "bad_edits": list(bad_edits),
+        "tol": tol,
+        "rigid_tol": rigid_tol,
+    }
     CHECKS[name](config, rest, edit, base_dir=base_dir, **{key: given[key] for key in OPTIONS.get(name, ())})
 
 
-def deformer_checks(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-                    identity_edit: dict | None = None, rigid_edit: dict | None = None, bad_edits: Iterable[dict] = (),
-                    tol: float = 1e-6, rigid_tol: float = 1e-4,
-                    skip: Iterable[str] = ()) -> list[tuple[str, functools.partial]]:
+def deformer_checks(
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    identity_edit: dict | None = None,
+    rigid_edit: dict | None = None,
+    bad_edits: Iterable[dict] = (),
+    tol: float = 1e-6,
+    rigid_tol: float = 1e-4,
+    skip: Iterable[str] = (),
+) -> list[tuple[str, functools.partial]]:
     """``[(name, check), ...]`` for every check in :data:`CHECKS` not named in ``skip`` (arguments as
     :func:`check_deformer`): ``check()`` runs that one property on ``config``. Each ``check`` is a
     :func:`functools.partial` of :func:`run_check` with every argument bound by keyword, so keywords given to the call
     override them (``check(base_dir=tmp_path)``). Nothing runs until a check is called."""
-    bound = {"rest": rest, "edit": edit, "base_dir": base_dir, "identity_edit": identity_edit,
-             "rigid_edit": rigid_edit, "bad_edits": tuple(bad_edits), "tol": tol, "rigid_tol": rigid_tol}
+    bound = {
+        "rest": rest,
+        "edit": edit,
+        "base_dir": base_dir,
+        "identity_edit": identity_edit,
+        "rigid_edit": rigid_edit,
+        "bad_edits": tuple(bad_edits),
+        "tol": tol,
+        "rigid_tol": rigid_tol,
+    }
     return [(name, functools.partial(run_check, name, config, **bound)) for name in select_checks(CHECKS, skip)]
 
 
-def check_deformer(config: Any, rest: SurfaceMesh | None = None, edit: dict | None = None, *, base_dir=None,
-                   identity_edit: dict | None = None, rigid_edit: dict | None = None, bad_edits: Iterable[dict] = (),
-                   tol: float = 1e-6, rigid_tol: float = 1e-4, skip: Iterable[str] = ()) -> None:
+def check_deformer(
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    identity_edit: dict | None = None,
+    rigid_edit: dict | None = None,
+    bad_edits: Iterable[dict] = (),
+    tol: float = 1e-6,
+    rigid_tol: float = 1e-4,
+    skip: Iterable[str] = (),
+) -> None:
     """Run every check in :data:`CHECKS` except those named in ``skip``; raises AssertionError on the first failure.
 
     ``rest`` defaults to :func:`default_mesh`, ``edit`` (a valid spec dict that moves something; file paths
     relative to ``base_dir``) to :func:`default_edit`. ``tol`` bounds identity and ``deform_points`` errors,
     ``rigid_tol`` the Procrustes residual, both relative to the rest bounding-box diagonal.
     """
-    for _, check in deformer_checks(config, rest, edit, base_dir=base_dir, identity_edit=identity_edit,
-                                    rigid_edit=rigid_edit, bad_edits=bad_edits, tol=tol, rigid_tol=rigid_tol,
-                                    skip=skip):
+    for _, check in deformer_checks(
+        config,
+        rest,
+        edit,
+        base_dir=base_dir,
+        identity_edit=identity_edit,
+        rigid_edit=rigid_edit,
+        bad_edits=bad_edits,
+        tol=tol,
+        rigid_tol=rigid_tol,
+        skip=skip,
+    ):
         check()

@@ -74,14 +74,16 @@ def check_config(config: Any) -> None:
     """A FieldConfig dataclass, a docstring per field, a lossless YAML round trip, a Field ``_target``."""
     name = type(config).__name__
     assert dataclasses.is_dataclass(config) and isinstance(config, FieldConfig), (
-        f"{name}: a field config must be a dataclass subclassing nerfedit_plugin.fields.base.FieldConfig")
+        f"{name}: a field config must be a dataclass subclassing nerfedit_plugin.fields.base.FieldConfig"
+    )
     target = config._target
     assert isinstance(target, type) and issubclass(target, Field), f"{name}._target is {target!r}, not a Field"
     assert target.kind in ("density", "sdf"), f"{target.__name__}.kind must be 'density' or 'sdf', not {target.kind!r}"
     assert target.data in ("images", "mesh"), f"{target.__name__}.data must be 'images' or 'mesh', not {target.data!r}"
     if target.data == "mesh":
         assert target.from_mesh.__func__ is not Field.from_mesh.__func__, (
-            f"{target.__name__}: data='mesh' needs from_mesh()")
+            f"{target.__name__}: data='mesh' needs from_mesh()"
+        )
     else:
         assert target.fit is not Field.fit, f"{target.__name__}: data='images' needs fit()"
     check_documented_round_trip(config)
@@ -103,7 +105,8 @@ def check_query(field: Field) -> None:
     with torch.no_grad():
         value, rgb = field.query(points, dirs)
     assert value.shape == (len(points),) and rgb.shape == (len(points), 3), (
-        f"{name}.query: expected shapes (M,) and (M,3), got {tuple(value.shape)} and {tuple(rgb.shape)}")
+        f"{name}.query: expected shapes (M,) and (M,3), got {tuple(value.shape)} and {tuple(rgb.shape)}"
+    )
     assert value.dtype.is_floating_point and rgb.dtype.is_floating_point, f"{name}.query: outputs must be float"
     assert value.device == points.device and rgb.device == points.device, f"{name}.query: outputs on another device"
     assert torch.isfinite(value).all() and torch.isfinite(rgb).all(), f"{name}.query: non-finite outputs"
@@ -112,13 +115,17 @@ def check_query(field: Field) -> None:
         assert value.min() >= 0, f"{name}.query: negative density"
     _same_queries(field, field, "querying again")
     if not field.view_dependent:
-        turned = torch.nn.functional.normalize(torch.randn(dirs.shape, generator=torch.Generator().manual_seed(1)), dim=-1)
+        turned = torch.nn.functional.normalize(
+            torch.randn(dirs.shape, generator=torch.Generator().manual_seed(1)), dim=-1
+        )
         with torch.no_grad():
             assert all(torch.equal(x, y) for x, y in zip(field.query(points, dirs), field.query(points, turned))), (
-                f"{name}.query: the colour depends on the direction, but view_dependent is False")
+                f"{name}.query: the colour depends on the direction, but view_dependent is False"
+            )
     occupied = field.occupied(points)
     assert occupied is None or (occupied.dtype == torch.bool and occupied.shape == (len(points),)), (
-        f"{name}.occupied: expected None or an (M,) bool mask")
+        f"{name}.occupied: expected None or an (M,) bool mask"
+    )
 
 
 def check_checkpoint(field: Field) -> None:
@@ -177,7 +184,8 @@ def check_extract(field: Field, resolution: int = 24) -> None:
     box = field.scene_bbox.detach().cpu().double().numpy()
     slack = 1e-6 * np.linalg.norm(box[1] - box[0])
     assert (mesh.vertices >= box[0] - slack).all() and (mesh.vertices <= box[1] + slack).all(), (
-        f"{name}.extract_mesh: vertices outside the scene box")
+        f"{name}.extract_mesh: vertices outside the scene box"
+    )
 
 
 CHECKS: dict[str, Callable] = {

@@ -59,11 +59,19 @@ def _lpips_weights() -> tuple[list, list] | None:
     with open(path, "rb") as fh:
         params = pickle.load(fh)
     convs = [
-        (torch.from_numpy(np.asarray(params["AlexNet_0"][f"Conv_{i}"]["kernel"])).permute(3, 2, 0, 1).float().contiguous(),
-         torch.from_numpy(np.asarray(params["AlexNet_0"][f"Conv_{i}"]["bias"])).float())
+        (
+            torch.from_numpy(np.asarray(params["AlexNet_0"][f"Conv_{i}"]["kernel"]))
+            .permute(3, 2, 0, 1)
+            .float()
+            .contiguous(),
+            torch.from_numpy(np.asarray(params["AlexNet_0"][f"Conv_{i}"]["bias"])).float(),
+        )
         for i in range(5)
     ]
-    lins = [torch.from_numpy(np.asarray(params[f"NetLinLayer_{i}"]["Conv_0"]["kernel"])).reshape(-1).float() for i in range(5)]
+    lins = [
+        torch.from_numpy(np.asarray(params[f"NetLinLayer_{i}"]["Conv_0"]["kernel"])).reshape(-1).float()
+        for i in range(5)
+    ]
     return convs, lins
 
 
@@ -116,10 +124,18 @@ def evaluate_folders(pred_dir: str | Path, gt_dir: str | Path, background=(1.0, 
             raise NerfEditError(f"{pred_dir / name}: missing (the ground truth {gt_dir / name} has no prediction)")
         pred, gt = (composite(*read_image(folder / name), background) for folder in (pred_dir, gt_dir))
         if pred.shape != gt.shape:
-            raise NerfEditError(f"{pred_dir / name}: image is {pred.shape[1]}x{pred.shape[0]}, the ground truth "
-                                f"is {gt.shape[1]}x{gt.shape[0]}")
+            raise NerfEditError(
+                f"{pred_dir / name}: image is {pred.shape[1]}x{pred.shape[0]}, the ground truth "
+                f"is {gt.shape[1]}x{gt.shape[0]}"
+            )
         per_image[name] = image_metrics(pred, gt)
     keys = next(iter(per_image.values())).keys()
-    mean = {k: (None if any(m[k] is None for m in per_image.values())
-                else float(np.mean([m[k] for m in per_image.values()]))) for k in keys}
+    mean = {
+        k: (
+            None
+            if any(m[k] is None for m in per_image.values())
+            else float(np.mean([m[k] for m in per_image.values()]))
+        )
+        for k in keys
+    }
     return {"images": per_image, "mean": mean}

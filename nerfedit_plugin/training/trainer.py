@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Literal
+from typing import Any, Literal
 
 import torch
 
@@ -56,7 +57,7 @@ class TrainerConfig:
     """Show a rich progress bar with the loss and PSNR."""
 
     @classmethod
-    def tiny(cls, seconds: float = 5.0) -> "TrainerConfig":
+    def tiny(cls, seconds: float = 5.0) -> TrainerConfig:
         """The budget of the backends' ``tiny`` presets (tests, smoke runs): ``seconds`` of small batches, no
         intermediate evaluation, no progress bar."""
         return cls(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0, progress=False)
@@ -131,8 +132,9 @@ def train(
             for group, lr in zip(optimizer.param_groups, initial_lr):
                 group["lr"] = lr * config.lr_final_factor**progress
             batch = pool[torch.randint(0, len(pool), (config.batch_rays,), generator=generator).to(device)]
-            step_config = render_config if cos_anneal is None else dataclasses.replace(
-                render_config, cos_anneal=cos_anneal(step))
+            step_config = (
+                render_config if cos_anneal is None else dataclasses.replace(render_config, cos_anneal=cos_anneal(step))
+            )
             out = render_rays(field, origins[batch], directions[batch], step_config, stratified=True)
             mse = torch.mean((out.rgb - colors[batch]) ** 2)
             loss = mse
@@ -198,12 +200,15 @@ class _Progress:
     def __init__(self, config: TrainerConfig) -> None:
         self.config, self.progress, self.task = config, None, None
 
-    def __enter__(self) -> "_Progress":
+    def __enter__(self) -> _Progress:
         if self.config.progress:
             from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
             self.progress = Progress(
-                TextColumn("training"), BarColumn(), TimeElapsedColumn(), TextColumn("{task.fields[status]}"),
+                TextColumn("training"),
+                BarColumn(),
+                TimeElapsedColumn(),
+                TextColumn("{task.fields[status]}"),
                 transient=False,
             )
             self.progress.start()

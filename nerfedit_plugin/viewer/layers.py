@@ -10,19 +10,19 @@ no display is present) and writes a PNG.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import yaml
 
-from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.data.datasets import to_uint8
+from nerfedit_plugin.edit.deformer import Deformer
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.edit.deformer import Deformer
+from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.registry import DEFORMERS, discover
 
 LAYERS = ("mesh", "deformed", "proxy", "deformed-proxy", "handles")
@@ -76,8 +76,9 @@ def _overlay(mesh: SurfaceMesh | None, style: str, shift: np.ndarray):
     return [_edges(moved.vertices, moved.faces, OVERLAY) if style == "wire" else _triangles(moved, OVERLAY)]
 
 
-def edit_geometries(mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None, frame: int = 0,
-                    layers: Iterable[str] | None = None) -> list:
+def edit_geometries(
+    mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None, frame: int = 0, layers: Iterable[str] | None = None
+) -> list:
     """The Open3D geometries of ``layers`` for a rest ``mesh`` and an optional edit folder. Built-in layers are
     :data:`LAYERS`; the edit's deformer adds its own (:meth:`Deformer.overlays`, e.g. ``cage``). ``None``:
     :data:`DEFAULT_LAYERS` and every overlay. Layers the folder does not hold are left out."""
@@ -124,8 +125,14 @@ def _check_layers(layers: set[str], known: tuple[str, ...]) -> None:
         raise NerfEditError(f"show: unknown layer(s) {', '.join(sorted(unknown))} (choose from {', '.join(known)})")
 
 
-def screenshot(geometries: list, path: str | os.PathLike, width: int = 960, height: int = 540,
-               up: Sequence[float] = (0.0, 1.0, 0.0), front: Sequence[float] = (0.3, 0.2, 1.0)) -> Path:
+def screenshot(
+    geometries: list,
+    path: str | os.PathLike,
+    width: int = 960,
+    height: int = 540,
+    up: Sequence[float] = (0.0, 1.0, 0.0),
+    front: Sequence[float] = (0.3, 0.2, 1.0),
+) -> Path:
     """Render ``geometries`` offscreen (no display needed) and write the PNG atomically."""
     import open3d as o3d
 

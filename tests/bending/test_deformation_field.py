@@ -6,8 +6,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.bending.deformation_field import BentPoints, DeformationField
-from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.bending.locate import TetLocator
+from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 
@@ -100,11 +100,15 @@ def test_regions_mapped_vacated_and_far(proxy, lifted):
     deformed, field = lifted
     shift = deformed[0] - v[0]
     centre = (v.min(0) + v.max(0)) / 2
-    points = torch.as_tensor(np.array([
-        centre + [0, 0, 0.5 * size[2]],  # inside T' (and T): mapped back by -shift
-        centre - [0, 0, 0.4 * size[2]],  # inside T only: the space the object left
-        centre + [10 * size[0], 0, 0],  # far away: identity
-    ]))
+    points = torch.as_tensor(
+        np.array(
+            [
+                centre + [0, 0, 0.5 * size[2]],  # inside T' (and T): mapped back by -shift
+                centre - [0, 0, 0.4 * size[2]],  # inside T only: the space the object left
+                centre + [10 * size[0], 0, 0],  # far away: identity
+            ]
+        )
+    )
     out = field.to_canonical(points)
     assert out.inside.tolist() == [True, False, False]
     assert out.empty.tolist() == [False, True, False]
@@ -145,8 +149,11 @@ def assert_bend_is_point_location(field: DeformationField, rest, deformed, tets,
     both = np.concatenate([rest, deformed])
     ends = [sample(both, 300, seed=seed + i, grow=2.0).numpy() for i in (1, 2)]
     rays = (ends[0][:, None] + np.linspace(0, 1, 64)[:, None] * (ends[1] - ends[0])[:, None]).reshape(-1, 3)
-    points = np.concatenate([boundary] + [boundary + rng.normal(0, s, boundary.shape) for s in (1e-6, 1e-4, 1e-2)]
-                            + [sample(both, 20000, seed=seed, grow=1.5).numpy(), rays, np.full((3, 3), np.nan)])
+    points = np.concatenate(
+        [boundary]
+        + [boundary + rng.normal(0, s, boundary.shape) for s in (1e-6, 1e-4, 1e-2)]
+        + [sample(both, 20000, seed=seed, grow=1.5).numpy(), rays, np.full((3, 3), np.nan)]
+    )
     x = torch.as_tensor(points, dtype=torch.float32)
     bent = field.bend(x)
     tet_deformed, bary = TetLocator(deformed, tets).locate(x)
@@ -198,7 +205,9 @@ def test_bend_agrees_with_point_location_in_both_proxies(proxy, lifted_field):
     inside = tet_deformed >= 0
     assert 0.2 < inside.double().mean() < 0.8 and 0.05 < bent.empty.double().mean()
     assert torch.allclose(bent.points[~inside], x[~inside], rtol=0, atol=0, equal_nan=True)  # NaN stays NaN
-    expected = (bary[inside, :, None] * torch.as_tensor(v, dtype=torch.float32)[torch.as_tensor(tets)[tet_deformed[inside]]]).sum(1)
+    expected = (
+        bary[inside, :, None] * torch.as_tensor(v, dtype=torch.float32)[torch.as_tensor(tets)[tet_deformed[inside]]]
+    ).sum(1)
     assert torch.allclose(bent.points[inside], expected, atol=1e-5)
     out = field.to_canonical(x)
     assert torch.allclose(out.points, bent.points, rtol=0, atol=0, equal_nan=True) and torch.equal(out.inside, inside)
@@ -296,20 +305,28 @@ def test_load_errors_name_file_and_key(tmp_path, proxy):
     np.savez(path, format_version=1, rest_vertices=proxy.vertices, deformed_vertices=proxy.vertices[None])
     with pytest.raises(NerfEditError, match="deformation.npz: missing key 'tets'"):
         DeformationField.load(path)
-    np.savez(path, format_version=1, rest_vertices=proxy.vertices, tets=proxy.tets + 10**6,
-             deformed_vertices=proxy.vertices[None])
+    np.savez(
+        path,
+        format_version=1,
+        rest_vertices=proxy.vertices,
+        tets=proxy.tets + 10**6,
+        deformed_vertices=proxy.vertices[None],
+    )
     with pytest.raises(NerfEditError, match="deformation.npz: tets: vertex index out of range"):
         DeformationField.load(path)
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda r, t, d: (r[:, :2], t, d), "rest_vertices: expected shape"),
-    (lambda r, t, d: (r, t[:, :3], d), "tets: expected shape"),
-    (lambda r, t, d: (r, t, d[:, :-1]), "deformed_vertices: expected shape"),
-    (lambda r, t, d: (r, t, np.where(np.arange(d.size).reshape(d.shape) == 7, np.nan, d)), "finite"),
-    (lambda r, t, d: (r, t - 1, d), "out of range"),
-    (lambda r, t, d: (r, t + 0.5, d), "integer"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda r, t, d: (r[:, :2], t, d), "rest_vertices: expected shape"),
+        (lambda r, t, d: (r, t[:, :3], d), "tets: expected shape"),
+        (lambda r, t, d: (r, t, d[:, :-1]), "deformed_vertices: expected shape"),
+        (lambda r, t, d: (r, t, np.where(np.arange(d.size).reshape(d.shape) == 7, np.nan, d)), "finite"),
+        (lambda r, t, d: (r, t - 1, d), "out of range"),
+        (lambda r, t, d: (r, t + 0.5, d), "integer"),
+    ],
+)
 def test_constructor_validates(proxy, change, message):
     args = change(proxy.vertices, proxy.tets, proxy.vertices[None].copy())
     with pytest.raises(NerfEditError, match=message):

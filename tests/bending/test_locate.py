@@ -22,7 +22,8 @@ def sphere_tets():
 
     mesh = trimesh.creation.icosphere(subdivisions=2)
     vertices, tets = pytetwild.tetrahedralize(
-        mesh.vertices, mesh.faces.astype(np.int32), edge_length_fac=0.07, optimize=True, epsilon=5e-3, quiet=True)
+        mesh.vertices, mesh.faces.astype(np.int32), edge_length_fac=0.07, optimize=True, epsilon=5e-3, quiet=True
+    )
     vertices = np.asarray(vertices, dtype=np.float64)
     return vertices, orient_tets(vertices, tets)
 
@@ -35,13 +36,15 @@ def probe_points(vertices: np.ndarray, tets: np.ndarray, n_random: int, seed: in
     faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]], tets[:, [0, 1, 2]]]), 1)
     faces = np.unique(faces, axis=0)
     edges = np.unique(np.sort(np.concatenate([tets[:, [i, j]] for i in range(4) for j in range(i + 1, 4)]), 1), axis=0)
-    return np.concatenate([
-        rng.uniform(centre - half, centre + half, (n_random, 3)),
-        vertices,
-        vertices[faces].mean(1),
-        vertices[edges].mean(1),
-        centre + half * 10 * rng.standard_normal((50, 3)),
-    ])
+    return np.concatenate(
+        [
+            rng.uniform(centre - half, centre + half, (n_random, 3)),
+            vertices,
+            vertices[faces].mean(1),
+            vertices[edges].mean(1),
+            centre + half * 10 * rng.standard_normal((50, 3)),
+        ]
+    )
 
 
 def assert_same_as_brute_force(vertices, tets, points, dtype, kernel, **kwargs):
@@ -74,12 +77,15 @@ def test_grid_equals_brute_force_on_pytetwild_mesh(sphere_tets, dtype, kernel):
     assert bary[inside].min() >= -EPS[dtype]
 
 
-@pytest.mark.parametrize("dtype, settings", [
-    (torch.float32, {}),
-    (torch.float64, {}),
-    (torch.float32, {"cells_per_tet": 0.3, "rounds": 1}),  # coarse cells, long lists: mostly the full scan
-    (torch.float32, {"cells_per_tet": 16.0, "rounds": 6}),
-])
+@pytest.mark.parametrize(
+    "dtype, settings",
+    [
+        (torch.float32, {}),
+        (torch.float64, {}),
+        (torch.float32, {"cells_per_tet": 0.3, "rounds": 1}),  # coarse cells, long lists: mostly the full scan
+        (torch.float32, {"cells_per_tet": 16.0, "rounds": 6}),
+    ],
+)
 def test_grid_equals_brute_force_on_cube_grid(dtype, settings, kernel):
     vertices, tets = kuhn_grid(5)
     points = probe_points(vertices, tets, 3000, seed=1)
@@ -122,8 +128,9 @@ def test_overlapping_and_degenerate_tets_follow_the_rule(kernel):
 def test_outside_nan_and_empty_inputs(kernel):
     vertices, tets = kuhn_grid(2)
     locator = TetLocator(vertices, tets, kernel=kernel)
-    points = torch.tensor([[-5.0, 0.5, 0.5], [0.5, 0.5, 7.0], [float("nan"), 0.5, 0.5], [float("inf"), 0, 0],
-                           [0.5, 0.5, 0.5]])
+    points = torch.tensor(
+        [[-5.0, 0.5, 0.5], [0.5, 0.5, 7.0], [float("nan"), 0.5, 0.5], [float("inf"), 0, 0], [0.5, 0.5, 0.5]]
+    )
     tet, bary = locator.locate(points)
     assert tet[:4].tolist() == [-1] * 4 and tet[4] >= 0
     assert (bary[:4] == 0).all()
@@ -204,8 +211,10 @@ def test_covered_cells_are_wholly_accepted(sphere_tets, hole):
         middle = offset.floor().long()  # the cell of the origin, in the hole
         assert locate_brute_force(vertices, tets, torch.zeros(1, 3))[0].item() == -1
         assert not covered[(middle * torch.tensor([side * side, side, 1])).sum()]
-        assert (covered.double().mean() < TetLocator(vertices, sphere_tets[1]).covered_cells(scale, offset, side)
-                .double().mean())
+        assert (
+            covered.double().mean()
+            < TetLocator(vertices, sphere_tets[1]).covered_cells(scale, offset, side).double().mean()
+        )
 
 
 def test_reach_cells_hold_every_accepted_point(sphere_tets):
@@ -218,7 +227,7 @@ def test_reach_cells_hold_every_accepted_point(sphere_tets):
     boxes = locator.boxes()
     first = (boxes[0] * scale + offset).floor().long().clamp(0, side - 1)
     last = (boxes[1] * scale + offset).floor().long().clamp(0, side - 1)
-    met = torch.zeros(side ** 3, dtype=torch.bool)
+    met = torch.zeros(side**3, dtype=torch.bool)
     met[(box_cells(first, last)[1] * torch.tensor([side * side, side, 1])).sum(1)] = True
     left_out = torch.nonzero(met & ~reach).squeeze(1)
     assert len(left_out) > 100

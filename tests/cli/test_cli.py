@@ -27,15 +27,30 @@ def workdir(tmp_path, capsule, monkeypatch):
 
 
 def edit(workdir, *extra):
-    return main(["edit", "--mesh", str(workdir / "capsule.ply"), "--edit", str(workdir / "edit.json"),
-                 "--out", str(workdir / "out"), *extra])
+    return main(
+        [
+            "edit",
+            "--mesh",
+            str(workdir / "capsule.ply"),
+            "--edit",
+            str(workdir / "edit.json"),
+            "--out",
+            str(workdir / "out"),
+            *extra,
+        ]
+    )
 
 
 def test_edit_writes_every_output(workdir, capsule):
     assert edit(workdir, "--deformer", "arap") == 0
     out = workdir / "out"
     assert {p.name for p in out.iterdir()} >= {
-        "config.yml", "edit.json", "deformed_mesh_0000.ply", "deformed_mesh_0001.ply", "deformation.npz", "report.json",
+        "config.yml",
+        "edit.json",
+        "deformed_mesh_0000.ply",
+        "deformed_mesh_0001.ply",
+        "deformation.npz",
+        "report.json",
     }
     field = DeformationField.load(out / "deformation.npz")
     assert field.n_frames == 2
@@ -70,8 +85,20 @@ def test_bad_spec_is_one_line_error_and_writes_nothing(workdir, capsys):
 def test_unknown_deformer_and_missing_mesh(workdir, capsys):
     assert edit(workdir, "--deformer", "nope") == 2
     assert "unknown deformer 'nope'" in capsys.readouterr().err
-    assert main(["edit", "--mesh", str(workdir / "none.ply"), "--edit", str(workdir / "edit.json"),
-                 "--out", str(workdir / "o")]) == 2
+    assert (
+        main(
+            [
+                "edit",
+                "--mesh",
+                str(workdir / "none.ply"),
+                "--edit",
+                str(workdir / "edit.json"),
+                "--out",
+                str(workdir / "o"),
+            ]
+        )
+        == 2
+    )
     assert "none.ply: mesh file not found" in capsys.readouterr().err
 
 

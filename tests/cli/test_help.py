@@ -17,12 +17,15 @@ def _help(capsys, *argv: str) -> str:
     return capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, group, chosen, option", [
-    (["edit"], DEFORMERS, "arap", "--deformer-options.max-iterations"),
-    (["edit", "--deformer", "cage"], DEFORMERS, "cage", "--deformer-options.coordinates"),
-    (["train"], FIELDS, "nerf", "--field-options.density-init"),
-    (["train", "--field", "mesh"], FIELDS, "mesh", "--field-options.padding"),
-])
+@pytest.mark.parametrize(
+    "argv, group, chosen, option",
+    [
+        (["edit"], DEFORMERS, "arap", "--deformer-options.max-iterations"),
+        (["edit", "--deformer", "cage"], DEFORMERS, "cage", "--deformer-options.coordinates"),
+        (["train"], FIELDS, "nerf", "--field-options.density-init"),
+        (["train", "--field", "mesh"], FIELDS, "mesh", "--field-options.padding"),
+    ],
+)
 def test_help_lists_every_plugin_with_its_description(capsys, argv, group, chosen, option):
     out = " ".join(_help(capsys, *argv).split())  # unwrap the help's line breaks
     plugins = discover(group).plugins[group]
@@ -43,8 +46,23 @@ def test_builtin_plugins_have_a_one_line_description():
 
 
 def test_literal_plugin_flags_still_parse():
-    args = parse(command("edit"), ["--deformer", "arap", "--field", "neus", "--run", "runs/r", "--edit", "e.json",
-                                   "--out", "o", "--deformer-options.max-iterations", "7"])
+    args = parse(
+        command("edit"),
+        [
+            "--deformer",
+            "arap",
+            "--field",
+            "neus",
+            "--run",
+            "runs/r",
+            "--edit",
+            "e.json",
+            "--out",
+            "o",
+            "--deformer-options.max-iterations",
+            "7",
+        ],
+    )
     assert (args.deformer, args.field, type(args.deformer_options).__name__) == ("arap", "neus", "ArapConfig")
     assert args.deformer_options.max_iterations == 7 and args.verbose is False and args.load_config is None
     args = parse(command("train"), ["--field=mesh", "--data", "m.ply", "--out", "r"])
@@ -59,15 +77,27 @@ def test_only_folder_writers_take_load_config():
 
 
 def _required(name: str) -> list[str]:
-    return {"train": ["--data", "d", "--out", "o"], "extract": ["--run", "r"], "edit": ["--edit", "e", "--out", "o"],
-            "render": ["--run", "r", "--cameras", "c", "--out", "o"], "eval": ["--pred", "p", "--gt", "g"],
-            "generate": ["--out", "o"]}.get(name, [])
+    return {
+        "train": ["--data", "d", "--out", "o"],
+        "extract": ["--run", "r"],
+        "edit": ["--edit", "e", "--out", "o"],
+        "render": ["--run", "r", "--cameras", "c", "--out", "o"],
+        "eval": ["--pred", "p", "--gt", "g"],
+        "generate": ["--out", "o"],
+    }.get(name, [])
 
 
 def test_verbose_is_read_from_the_parsed_args(tmp_path, capsys):
     (tmp_path / "edit.json").write_text(json.dumps({"handles": []}))
-    argv = ["edit", "--mesh", str(tmp_path / "none.ply"), "--edit", str(tmp_path / "edit.json"),
-            "--out", str(tmp_path / "o")]
+    argv = [
+        "edit",
+        "--mesh",
+        str(tmp_path / "none.ply"),
+        "--edit",
+        str(tmp_path / "edit.json"),
+        "--out",
+        str(tmp_path / "o"),
+    ]
     assert main(argv) == 2
     assert capsys.readouterr().err.strip().count("\n") == 0
     with pytest.raises(NerfEditError, match="mesh file not found"):

@@ -51,8 +51,11 @@ def _same_mesh(a: Path, b: Path) -> bool:
 
 def _same_pngs(a: Path, b: Path) -> bool:
     names = sorted(p.name for p in a.glob("*.png"))
-    return names == sorted(p.name for p in b.glob("*.png")) and len(names) > 0 and all(
-        np.array_equal(np.asarray(Image.open(a / n)), np.asarray(Image.open(b / n))) for n in names)
+    return (
+        names == sorted(p.name for p in b.glob("*.png"))
+        and len(names) > 0
+        and all(np.array_equal(np.asarray(Image.open(a / n)), np.asarray(Image.open(b / n))) for n in names)
+    )
 
 
 def test_edit_reruns_from_its_config_in_another_folder(workdir, tmp_path, monkeypatch):
@@ -71,11 +74,28 @@ def test_edit_reruns_from_its_config_in_another_folder(workdir, tmp_path, monkey
 
 
 def test_flags_override_the_loaded_config_and_overwrite_is_never_loaded(workdir):
-    assert main(["edit", "--mesh", "capsule.ply", "--edit", "edit.json", "--out", "a", "--overwrite",
-                 "--deformer-options.max-iterations", "50"]) == 0
+    assert (
+        main(
+            [
+                "edit",
+                "--mesh",
+                "capsule.ply",
+                "--edit",
+                "edit.json",
+                "--out",
+                "a",
+                "--overwrite",
+                "--deformer-options.max-iterations",
+                "50",
+            ]
+        )
+        == 0
+    )
     assert _config(workdir / "a")["overwrite"] is True
-    assert main(["edit", "--load-config", "a", "--out", "b", "--lift", "knn3", "--deformer-options.tolerance",
-                 "1e-3"]) == 0
+    assert (
+        main(["edit", "--load-config", "a", "--out", "b", "--lift", "knn3", "--deformer-options.tolerance", "1e-3"])
+        == 0
+    )
     b = _config(workdir / "b")
     assert b["lift"] == "knn3" and b["deformer_options"]["tolerance"] == 1e-3
     assert b["deformer_options"]["max_iterations"] == 50 and b["overwrite"] is False  # loaded / not loaded
@@ -88,8 +108,24 @@ def test_flags_override_the_loaded_config_and_overwrite_is_never_loaded(workdir)
 def test_plugin_choice_and_its_options_come_from_the_config(workdir, capsule):
     capsule.with_vertices(capsule.vertices * [1, 1, 1.2]).save(workdir / "edited.ply")
     (workdir / "mesh_edit.json").write_text(json.dumps({"deformed": "edited.ply"}))
-    assert main(["edit", "--mesh", "capsule.ply", "--deformer", "mesh", "--edit", "mesh_edit.json", "--out", "a",
-                 "--lift", "closest-point"]) == 0
+    assert (
+        main(
+            [
+                "edit",
+                "--mesh",
+                "capsule.ply",
+                "--deformer",
+                "mesh",
+                "--edit",
+                "mesh_edit.json",
+                "--out",
+                "a",
+                "--lift",
+                "closest-point",
+            ]
+        )
+        == 0
+    )
     assert main(["edit", "--load-config", "a", "--out", "b"]) == 0
     assert json.loads((workdir / "b" / "report.json").read_text())["deformer"] == "MeshDeformer"
     assert _same_mesh(workdir / "a" / "deformed_mesh.ply", workdir / "b" / "deformed_mesh.ply")
@@ -110,8 +146,11 @@ def test_wrong_or_missing_config_is_one_line(workdir, capsys):
 def test_a_run_written_without_its_command_reruns_from_field_data_and_config(workdir):
     run = workdir / "demo_run"  # what `nerfedit demo` writes for its run: no `command` key
     run.mkdir()
-    (run / "config.yml").write_text(yaml.safe_dump({"field": "mesh", "data": "../capsule_colored.ply",
-                                                    "field_config": {"density": 5.0, "padding": 0.1}}))
+    (run / "config.yml").write_text(
+        yaml.safe_dump(
+            {"field": "mesh", "data": "../capsule_colored.ply", "field_config": {"density": 5.0, "padding": 0.1}}
+        )
+    )
     args = parse(command("train"), ["--load-config", str(run), "--out", "r"])
     assert args.field == "mesh" and args.data.resolve() == workdir / "capsule_colored.ply"
     assert args.field_options.density == 5.0 and args.field_options.padding == 0.1
@@ -126,8 +165,31 @@ def test_mesh_run_render_and_generate_record_and_rerun(workdir):
     assert _same_mesh(workdir / "run" / "mesh.ply", workdir / "run2" / "mesh.ply")
     assert _config(workdir / "run2")["command"]["data"] == str(workdir / "capsule_colored.ply")
 
-    assert main(["generate", "--mesh", "capsule_colored.ply", "--keep-colors", "--out", "data", "--resolution", "8",
-                 "--n-train", "1", "--n-val", "1", "--n-test", "2", "--supersample", "1", "--up-axis", "z"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "--mesh",
+                "capsule_colored.ply",
+                "--keep-colors",
+                "--out",
+                "data",
+                "--resolution",
+                "8",
+                "--n-train",
+                "1",
+                "--n-val",
+                "1",
+                "--n-test",
+                "2",
+                "--supersample",
+                "1",
+                "--up-axis",
+                "z",
+            ]
+        )
+        == 0
+    )
     assert _config(workdir / "data")["mesh"] == str(workdir / "capsule_colored.ply")
     assert main(["generate", "--load-config", "data", "--out", "data2"]) == 0
     assert _same_pngs(workdir / "data" / "test", workdir / "data2" / "test")

@@ -11,8 +11,6 @@ import trimesh
 
 from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
 from nerfedit_plugin.data.datasets import block_mean, load_dataset, read_image, read_transforms
-from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.data.synthetic import (
     GenerateConfig,
     colorize,
@@ -21,6 +19,8 @@ from nerfedit_plugin.data.synthetic import (
     render_ground_truth,
     render_mesh,
 )
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 SMALL = dict(n_train=4, n_val=1, n_test=3, resolution=24)
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from deformers.skeleton.bvh import parse_bvh
 from deformers.skeleton import Skeleton
+from deformers.skeleton.bvh import parse_bvh
 from nerfedit_plugin.errors import NerfEditError
 
 TINY = """HIERARCHY
@@ -96,10 +96,20 @@ def test_resampling_slerps_between_frames(tmp_path):
     "old, new, line, message",
     [
         ("ROOT hips\n{", "ROOT hips\n(", 3, "expected '{'"),
-        ("Zrotation Xrotation Yrotation\n    End", "Zrotation Wrotation Yrotation\n    End", 9, "unknown channel 'Wrotation'"),
+        (
+            "Zrotation Xrotation Yrotation\n    End",
+            "Zrotation Wrotation Yrotation\n    End",
+            9,
+            "unknown channel 'Wrotation'",
+        ),
         ("OFFSET 0 -2 0", "OFFSET 0 minus2 0", 8, "expected OFFSET y"),
         ("CHANNELS 3 Zrotation", "CHANNELS 2.5 Zrotation", 9, "channel count"),
-        ("CHANNELS 3 Xrotation Yrotation Zrotation", "CHANNELS 3 Xrotation Xrotation Zrotation", 18, "repeated channel"),
+        (
+            "CHANNELS 3 Xrotation Yrotation Zrotation",
+            "CHANNELS 3 Xrotation Xrotation Zrotation",
+            18,
+            "repeated channel",
+        ),
         ("    End Site", "    Finish Site", 10, "expected JOINT, End Site or '}'"),
         ("1 2 3 90 0 0 0 90 0 0 0 0", "1 2 3 90 0 0 0 90 0 0 0", 25, "expected 12 channel values, got 11"),
         ("1 2 3 90 0 0 0 90 0 0 0 0", "1 2 3 90 0 0 0 90 0 0 0 zero", 25, "non-numeric"),

@@ -32,9 +32,11 @@ def bind(config, edit, base_dir=".", rest=REST, source="edit.json"):
 @pytest.fixture
 def files(tmp_path):
     """Write cages into tmp_path: ``write(name, mesh)`` returns the file name relative to tmp_path."""
+
     def write(name, mesh):
         mesh.save(tmp_path / name)
         return name
+
     return write
 
 
@@ -62,8 +64,11 @@ def test_registered_as_entry_point():
 # ---- exact cage maps -------------------------------------------------------------------------------------------
 def test_mvc_reproduces_an_affine_cage_map_in_every_frame(files, tmp_path):
     a, b = AFFINE
-    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ a.T + b)),
-            "frames": 3}
+    edit = {
+        "cage": files("cage.ply", CAGE),
+        "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ a.T + b)),
+        "frames": 3,
+    }
     out = bind(CageConfig(), edit, tmp_path).deform()
     for t, frame in zip([0.0, 0.5, 1.0], out):  # the cage interpolates linearly, so each frame is affine too
         assert np.abs(frame - ((1 - t) * REST.vertices + t * (REST.vertices @ a.T + b))).max() < 1e-12
@@ -71,7 +76,10 @@ def test_mvc_reproduces_an_affine_cage_map_in_every_frame(files, tmp_path):
 
 def test_green_reproduces_a_similarity(files, tmp_path):
     r, b = SIMILARITY
-    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ r.T + b))}
+    edit = {
+        "cage": files("cage.ply", CAGE),
+        "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ r.T + b)),
+    }
     out = bind(CageConfig(coordinates="green"), edit, tmp_path).deform()
     assert np.abs(out[0] - (REST.vertices @ r.T + b)).max() < 1e-10
 
@@ -79,7 +87,10 @@ def test_green_reproduces_a_similarity(files, tmp_path):
 def test_inward_oriented_cage_is_accepted(files, tmp_path):
     r, b = SIMILARITY
     inward = SurfaceMesh(CAGE.vertices, CAGE.faces[:, ::-1])
-    edit = {"cage": files("cage.ply", inward), "deformed_cage": files("moved.ply", inward.with_vertices(CAGE.vertices @ r.T + b))}
+    edit = {
+        "cage": files("cage.ply", inward),
+        "deformed_cage": files("moved.ply", inward.with_vertices(CAGE.vertices @ r.T + b)),
+    }
     out = bind(CageConfig(coordinates="green"), edit, tmp_path).deform()
     assert np.abs(out[0] - (REST.vertices @ r.T + b)).max() < 1e-10
 
@@ -113,8 +124,9 @@ def test_coarse_auto_cage_is_rewrapped_until_it_encloses(capsule):
         warnings.simplefilter("error")
         deformer = bind(CageConfig(auto_max_vertices=40), default_edit(capsule), rest=capsule)
     assert deformer.rest_cage.n_vertices <= 40
-    _, winding = mean_value_coordinates(capsule.vertices, deformer.rest_cage.vertices, deformer.rest_cage.faces,
-                                        return_winding=True)
+    _, winding = mean_value_coordinates(
+        capsule.vertices, deformer.rest_cage.vertices, deformer.rest_cage.faces, return_winding=True
+    )
     assert np.all(np.abs(winding) > 0.5)
 
 
@@ -128,8 +140,13 @@ def test_deform_points_cache_follows_its_input():
 
 
 # ---- artifacts -------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("frames, names", [(1, ["cage_rest.ply", "cage_deformed.ply"]),
-                                           (3, ["cage_rest.ply"] + [f"cage_deformed_{i:04d}.ply" for i in range(3)])])
+@pytest.mark.parametrize(
+    "frames, names",
+    [
+        (1, ["cage_rest.ply", "cage_deformed.ply"]),
+        (3, ["cage_rest.ply"] + [f"cage_deformed_{i:04d}.ply" for i in range(3)]),
+    ],
+)
 def test_write_artifacts(frames, names, tmp_path):
     deformer = bind(CageConfig(), {**default_edit(REST), "frames": frames})
     written = deformer.write_artifacts(tmp_path / "out")
@@ -154,17 +171,30 @@ def _bad_cases(files, tmp_path):
     lines[next(i for i, line in enumerate(lines) if line.startswith("v "))] = "v nan 0 0"
     (tmp_path / "nan.obj").write_text("\n".join(lines) + "\n")
     return [
-        ({"cage": files("open.ply", open_cage), "deformed_cage": files("d.ply", open_cage)},
-         r"cage: .*open\.ply: not closed \(\d+ boundary edges\)"),
-        ({"cage": files("flip.ply", SurfaceMesh(CAGE.vertices, flipped)), "handles": handles},
-         r"cage: .*flip\.ply: not consistently oriented"),
-        ({"cage": files("c.ply", CAGE), "deformed_cage": files("o.ply", SurfaceMesh(other.vertices, other.faces))},
-         r"deformed_cage: .*o\.ply: has 162 vertices, the cage has 42"),
-        ({"cage": files("c.ply", CAGE), "deformed_cage": files("t.ply", SurfaceMesh(CAGE.vertices @ a.T, retriangulated))},
-         r"deformed_cage: .*t\.ply: its triangles differ"),
+        (
+            {"cage": files("open.ply", open_cage), "deformed_cage": files("d.ply", open_cage)},
+            r"cage: .*open\.ply: not closed \(\d+ boundary edges\)",
+        ),
+        (
+            {"cage": files("flip.ply", SurfaceMesh(CAGE.vertices, flipped)), "handles": handles},
+            r"cage: .*flip\.ply: not consistently oriented",
+        ),
+        (
+            {"cage": files("c.ply", CAGE), "deformed_cage": files("o.ply", SurfaceMesh(other.vertices, other.faces))},
+            r"deformed_cage: .*o\.ply: has 162 vertices, the cage has 42",
+        ),
+        (
+            {
+                "cage": files("c.ply", CAGE),
+                "deformed_cage": files("t.ply", SurfaceMesh(CAGE.vertices @ a.T, retriangulated)),
+            },
+            r"deformed_cage: .*t\.ply: its triangles differ",
+        ),
         ({"cage": "auto", "deformed_cage": files("c.ply", CAGE)}, r"deformed_cage: needs a cage file"),
-        ({"cage": files("c.ply", CAGE), "deformed_cage": files("c.ply", CAGE), "handles": handles},
-         r"deformed_cage and handles: "),
+        (
+            {"cage": files("c.ply", CAGE), "deformed_cage": files("c.ply", CAGE), "handles": handles},
+            r"deformed_cage and handles: ",
+        ),
         ({"cage": files("c.ply", CAGE)}, r"nothing moves the cage"),
         ({"cage": 3, "handles": handles}, r"cage: expected \"auto\" or a mesh file"),
         ({"cage": "missing.ply", "handles": handles}, r"cage: file not found"),
@@ -180,7 +210,7 @@ def test_bad_input_is_rejected_naming_file_and_problem(files, tmp_path):
 
 @pytest.mark.parametrize("option", [{"chunk_size": 0}, {"auto_alpha": 0.0}, {"auto_max_vertices": 3}])
 def test_bad_options_are_rejected(option):
-    (name, value), = option.items()
+    ((name, value),) = option.items()
     with pytest.raises(NerfEditError, match=rf"cage deformer: {name} must be .*, got {value}"):
         CageConfig(**option).setup()
 
@@ -189,7 +219,10 @@ def test_bad_options_are_rejected(option):
 def test_cage_that_misses_points_warns_and_still_maps_affinely(coordinates, files, tmp_path):
     small = CAGE.with_vertices(CAGE.vertices * [0.75, 0.75, 0.625])  # the ellipsoid's tips poke out
     r, b = SIMILARITY
-    edit = {"cage": files("small.ply", small), "deformed_cage": files("moved.ply", small.with_vertices(small.vertices @ r.T + b))}
+    edit = {
+        "cage": files("small.ply", small),
+        "deformed_cage": files("moved.ply", small.with_vertices(small.vertices @ r.T + b)),
+    }
     with pytest.warns(UserWarning, match=r"small\.ply: (\d+) of 162 mesh vertices lie outside the cage") as record:
         out = bind(CageConfig(coordinates=coordinates), edit, tmp_path).deform()
     outside = int(re.search(r"(\d+) of 162", str(record[0].message)).group(1))

@@ -4,9 +4,9 @@ import igl
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from test_mean_value import star_cage
 
 from deformers.cage.green import green_coordinates, green_deform, green_face_terms
-from test_mean_value import star_cage
 
 V, F = star_cage()
 RNG = np.random.default_rng(1)
@@ -19,6 +19,7 @@ NORMALS /= np.linalg.norm(NORMALS, axis=1, keepdims=True)
 
 def gc_tri_int(p, v1, v2, eta):
     """GCTriInt of Lipman, Levin & Cohen-Or (2008), literally."""
+
     def angle(a, b):
         return np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1, 1))
 

@@ -7,7 +7,13 @@ import scipy.sparse as sp
 import trimesh
 from scipy.spatial import cKDTree
 
-from deformers.skeleton.heat_weights import bone_heat_weights, closest_on_segments, cotangent_stiffness, heat_sources, lumped_mass
+from deformers.skeleton.heat_weights import (
+    bone_heat_weights,
+    closest_on_segments,
+    cotangent_stiffness,
+    heat_sources,
+    lumped_mass,
+)
 
 TWO_BONES = (np.array([[0, 0, -0.8], [0, 0, 0]]), np.array([[0, 0, 0], [0, 0, 0.8]]))  # inside tube()
 

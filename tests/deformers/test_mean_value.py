@@ -33,14 +33,17 @@ def ju_reference(x: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.n
     for tri in faces:
         theta = [2 * np.arcsin(np.linalg.norm(u[tri[(k + 1) % 3]] - u[tri[(k + 2) % 3]]) / 2) for k in range(3)]
         h = sum(theta) / 2
-        c = [2 * np.sin(h) * np.sin(h - theta[k]) / (np.sin(theta[(k + 1) % 3]) * np.sin(theta[(k + 2) % 3])) - 1
-             for k in range(3)]
+        c = [
+            2 * np.sin(h) * np.sin(h - theta[k]) / (np.sin(theta[(k + 1) % 3]) * np.sin(theta[(k + 2) % 3])) - 1
+            for k in range(3)
+        ]
         s = [np.sign(np.linalg.det(u[tri])) * np.sqrt(max(0.0, 1 - ck**2)) for ck in c]
         if min(abs(sk) for sk in s) <= 1e-12:
             continue
         for k in range(3):
-            w[tri[k]] += ((theta[k] - c[(k + 1) % 3] * theta[(k + 2) % 3] - c[(k + 2) % 3] * theta[(k + 1) % 3])
-                          / (d[tri[k]] * np.sin(theta[(k + 1) % 3]) * s[(k + 2) % 3]))
+            w[tri[k]] += (theta[k] - c[(k + 1) % 3] * theta[(k + 2) % 3] - c[(k + 2) % 3] * theta[(k + 1) % 3]) / (
+                d[tri[k]] * np.sin(theta[(k + 1) % 3]) * s[(k + 2) % 3]
+            )
     return w / w.sum()
 
 
@@ -99,7 +102,9 @@ def test_points_on_faces_edges_and_vertices():
     on_edge = t * V[F[faces, 0]] + (1 - t) * V[F[faces, 1]]
     w = mean_value_coordinates(on_edge, V, F)
     assert np.isfinite(w).all() and np.abs(w @ V - on_edge).max() < 1e-12 * SCALE
-    assert np.allclose(w[np.arange(100), F[faces, 0]], t[:, 0]) and np.allclose(w[np.arange(100), F[faces, 1]], 1 - t[:, 0])
+    assert np.allclose(w[np.arange(100), F[faces, 0]], t[:, 0]) and np.allclose(
+        w[np.arange(100), F[faces, 1]], 1 - t[:, 0]
+    )
 
 
 @pytest.mark.parametrize("distance", [1e-3, 1e-6, 1e-9, 1e-11, 1e-13])

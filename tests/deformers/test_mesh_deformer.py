@@ -55,8 +55,12 @@ def test_wrong_vertex_count_and_connectivity_are_errors(tmp_path, rest):
         bind(tmp_path, rest, {"deformed": "none/*.ply"})
 
 
-@parametrize_with_checks(MeshConfig(), edit={"deformed": "edited.ply", "frames": 2},
-                         identity_edit={"deformed": "same.ply"}, rigid_edit={"deformed": "rigid.ply"})
+@parametrize_with_checks(
+    MeshConfig(),
+    edit={"deformed": "edited.ply", "frames": 2},
+    identity_edit={"deformed": "same.ply"},
+    rigid_edit={"deformed": "rigid.ply"},
+)
 def test_conformance_kit(check, tmp_path, rest):
     rot = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
     rest.with_vertices(rest.vertices * [1.0, 1.3, 0.8]).save(tmp_path / "edited.ply")

@@ -14,8 +14,8 @@ from deformers.skeleton import Skeleton, SkeletonConfig, SkeletonDeformer, close
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.io.samples import sample_mesh_path
+from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.testing import parametrize_with_checks
 
 # A closed tube along z (radius 0.25, z ∈ [-1, 1], a vertex ring every 0.05 including z = 0) and a two-bone chain.
@@ -76,12 +76,18 @@ def radius(points):
 # ---- skeleton model -------------------------------------------------------------------------------------------
 def test_json_skeleton_default_tails_and_order(tmp_path):
     path = tmp_path / "s.json"
-    path.write_text(json.dumps({"joints": [
-        {"name": "b", "parent": "a", "head": [1, 0, 0]},
-        {"name": "a", "parent": None, "head": [0, 0, 0]},
-        {"name": "c", "parent": "a", "head": [0, 1, 0]},
-        {"name": "solo", "parent": None, "head": [5, 5, 5]},
-    ]}))
+    path.write_text(
+        json.dumps(
+            {
+                "joints": [
+                    {"name": "b", "parent": "a", "head": [1, 0, 0]},
+                    {"name": "a", "parent": None, "head": [0, 0, 0]},
+                    {"name": "c", "parent": "a", "head": [0, 1, 0]},
+                    {"name": "solo", "parent": None, "head": [5, 5, 5]},
+                ]
+            }
+        )
+    )
     s = Skeleton.from_json(path)
     assert s.names == ("b", "a", "c", "solo") and list(s.parents) == [1, -1, 1, -1]
     assert np.allclose(s.tails[1], [0.5, 0.5, 0])  # mean head of the children
@@ -91,11 +97,17 @@ def test_json_skeleton_default_tails_and_order(tmp_path):
 
 def test_forward_kinematics_composes_down_the_hierarchy(tmp_path):
     path = tmp_path / "s.json"
-    path.write_text(json.dumps({"joints": [
-        {"name": "a", "parent": None, "head": [0, 0, 0]},
-        {"name": "b", "parent": "a", "head": [1, 0, 0]},
-        {"name": "c", "parent": "b", "head": [2, 0, 0]},
-    ]}))
+    path.write_text(
+        json.dumps(
+            {
+                "joints": [
+                    {"name": "a", "parent": None, "head": [0, 0, 0]},
+                    {"name": "b", "parent": "a", "head": [1, 0, 0]},
+                    {"name": "c", "parent": "b", "head": [2, 0, 0]},
+                ]
+            }
+        )
+    )
     s = Skeleton.from_json(path)
     rz90 = Rotation.from_euler("z", 90, degrees=True).as_matrix()
     rot = np.stack([rz90, rz90, np.eye(3)])[None]
@@ -123,7 +135,9 @@ def test_closest_point_barycentrics_match_libigl():
 # ---- deformation ----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["dqs", "lbs"])
 def test_identity_pose_is_identity(folder, method):
-    d = bind(folder, pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 0}}, lower={"translate": [0, 0, 0]}), method=method)
+    d = bind(
+        folder, pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 0}}, lower={"translate": [0, 0, 0]}), method=method
+    )
     assert np.abs(d.deform()[0] - TUBE.vertices).max() < 1e-14
 
 
@@ -220,17 +234,29 @@ def _skeleton_error(folder, joints, match):
 
 def test_bad_skeletons(folder):
     head = [0, 0, 0]
-    _skeleton_error(folder, [{"name": "a", "parent": "b", "head": head}, {"name": "b", "parent": "a", "head": head},
-                             {"name": "r", "parent": None, "head": head}], "parent cycle a → b → a")
+    _skeleton_error(
+        folder,
+        [
+            {"name": "a", "parent": "b", "head": head},
+            {"name": "b", "parent": "a", "head": head},
+            {"name": "r", "parent": None, "head": head},
+        ],
+        "parent cycle a → b → a",
+    )
     _skeleton_error(folder, [{"name": "a", "parent": "a", "head": head}], "parent cycle a → a")
-    _skeleton_error(folder, [{"name": "a", "parent": "ghost", "head": head}], r"joints\[0\].parent: unknown joint 'ghost'")
-    _skeleton_error(folder, [{"name": "a", "parent": None, "head": head}, {"name": "a", "parent": None, "head": head}],
-                    r"joints\[1\]: duplicate joint name 'a'")
+    _skeleton_error(
+        folder, [{"name": "a", "parent": "ghost", "head": head}], r"joints\[0\].parent: unknown joint 'ghost'"
+    )
+    _skeleton_error(
+        folder,
+        [{"name": "a", "parent": None, "head": head}, {"name": "a", "parent": None, "head": head}],
+        r"joints\[1\]: duplicate joint name 'a'",
+    )
     _skeleton_error(folder, [{"name": "a", "parent": None}], r"joints\[0\].head: missing")
     _skeleton_error(folder, [{"name": "a", "parent": None, "head": [0, 0]}], r"joints\[0\].head: expected 3 numbers")
     _skeleton_error(folder, [{"name": "a", "parent": None, "head": head, "tip": head}], r"joints\[0\].tip: unknown key")
     _skeleton_error(folder, [], "joints: expected a non-empty list")
-    (folder / "broken.json").write_text("{\"joints\": [")
+    (folder / "broken.json").write_text('{"joints": [')
     with pytest.raises(NerfEditError, match="broken.json: cannot parse skeleton JSON"):
         bind(folder, {"skeleton": "broken.json", "pose": {}})
     (folder / "rig.txt").write_text("")
@@ -245,7 +271,10 @@ def test_bad_skeletons(folder):
         ({"upper": {"rotate": {"axis": [0, 0, 0], "degrees": 5}}}, r"pose.upper.rotate.axis: is the zero vector"),
         ({"upper": {"rotate": {"axis": [0, 0, 1]}}}, r"pose.upper.rotate.degrees: missing"),
         ({"upper": {"rotate": {"axis": [0, 0, 1], "degrees": "9"}}}, r"pose.upper.rotate.degrees: expected a finite"),
-        ({"upper": {"rotate": {"axis": [0, 0, 1], "degrees": 9, "center": [0, 0, 0]}}}, r"pose.upper.rotate.center: unknown"),
+        (
+            {"upper": {"rotate": {"axis": [0, 0, 1], "degrees": 9, "center": [0, 0, 0]}}},
+            r"pose.upper.rotate.center: unknown",
+        ),
         ({"upper": {"translate": [0, float("nan"), 0]}}, r"pose.upper.translate: contains NaN"),
         ({"upper": {"scale": 2}}, r"pose.upper.scale: unknown key"),
         ({"upper": {}}, r"pose.upper: empty transform"),
@@ -265,7 +294,11 @@ def test_missing_pose_bad_bvh_and_bad_weights(folder):
     for name, weights, match in [
         ("short.npy", np.ones((5, 2)), r"short.npy: weights shape \(5, 2\), expected \(986, 2\)"),
         ("wide.npy", np.ones((TUBE.n_vertices, 3)), r"expected \(986, 2\)"),
-        ("neg.npy", np.where(np.arange(2) == 0, -1.0, 1.0) * np.ones((TUBE.n_vertices, 1)), "negative weight at vertex 0"),
+        (
+            "neg.npy",
+            np.where(np.arange(2) == 0, -1.0, 1.0) * np.ones((TUBE.n_vertices, 1)),
+            "negative weight at vertex 0",
+        ),
         ("zero.npy", np.zeros((TUBE.n_vertices, 2)), "vertex 0 has all-zero weights"),
         ("nan.npy", np.full((TUBE.n_vertices, 2), np.nan), "must be finite"),
     ]:
@@ -308,16 +341,22 @@ BOTH = [SkeletonConfig(method="dqs"), SkeletonConfig(method="lbs")]
 
 
 @parametrize_with_checks(
-    BOTH, rest=TUBE, edit={**pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 45}}), "frames": 2},
+    BOTH,
+    rest=TUBE,
+    edit={**pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 45}}), "frames": 2},
     rigid_edit={**pose(lower={"rotate": {"axis": [1, 1, 0], "degrees": 35}, "translate": [0.2, 0, -0.1]}), "frames": 2},
-    bad_edits=[pose(elbow={"translate": [0, 0, 1]}), {"skeleton": "chain.json"}])
+    bad_edits=[pose(elbow={"translate": [0, 0, 1]}), {"skeleton": "chain.json"}],
+)
 def test_conformance_kit_json_pose(check, folder):
     check(base_dir=folder)
 
 
 @parametrize_with_checks(
-    BOTH, rest=TUBE, edit={"skeleton": "chain.bvh", "frames": 3},
+    BOTH,
+    rest=TUBE,
+    edit={"skeleton": "chain.bvh", "frames": 3},
     identity_edit={"skeleton": "chain.bvh", "pose": {"lower": {"translate": [0, 0, 0]}}},
-    rigid_edit={"skeleton": "chain.bvh", "pose": {"lower": {"rotate": {"axis": [0, 1, 0], "degrees": 30}}}})
+    rigid_edit={"skeleton": "chain.bvh", "pose": {"lower": {"rotate": {"axis": [0, 1, 0], "degrees": 30}}}},
+)
 def test_conformance_kit_bvh_clip(check, folder):
     check(base_dir=folder)

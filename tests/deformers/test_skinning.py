@@ -21,7 +21,9 @@ def cylinder_points(rings=41, sides=16, radius=0.25):
     """Rings along z ∈ [-1, 1] (one exactly at z = 0)."""
     z = np.linspace(-1, 1, rings)
     a = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    return np.column_stack([np.tile(radius * np.cos(a), rings), np.tile(radius * np.sin(a), rings), np.repeat(z, sides)])
+    return np.column_stack(
+        [np.tile(radius * np.cos(a), rings), np.tile(radius * np.sin(a), rings), np.repeat(z, sides)]
+    )
 
 
 @pytest.mark.parametrize("method", ["dqs", "lbs"])

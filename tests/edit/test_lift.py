@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.edit.lift import Lift
+from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 ROT = Rotation.from_rotvec([0.3, -0.5, 0.8]).as_matrix()

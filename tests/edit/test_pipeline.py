@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from nerfedit_plugin.cli.app import main
+from nerfedit_plugin.data.synthetic import render_ground_truth
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.run import open_run
-from nerfedit_plugin.data.synthetic import render_ground_truth
 
 EDIT = {
     "handles": [
@@ -25,8 +25,28 @@ EDIT = {
 def scene(capsule, tmp_path_factory):
     root = tmp_path_factory.mktemp("pipeline")
     capsule.save(root / "capsule.ply")
-    assert main(["generate", "--out", str(root / "data"), "--mesh", str(root / "capsule.ply"), "--resolution", "48",
-                 "--n-train", "2", "--n-val", "1", "--n-test", "3", "--up-axis", "z"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "--out",
+                str(root / "data"),
+                "--mesh",
+                str(root / "capsule.ply"),
+                "--resolution",
+                "48",
+                "--n-train",
+                "2",
+                "--n-val",
+                "1",
+                "--n-test",
+                "3",
+                "--up-axis",
+                "z",
+            ]
+        )
+        == 0
+    )
     (root / "edit.json").write_text(json.dumps(EDIT))
     return root
 
@@ -50,41 +70,155 @@ def test_mesh_run_extracts_its_mesh_unchanged(scene, mesh_run):
 def test_edited_render_matches_ground_truth_of_the_deformed_mesh(scene, mesh_run, monkeypatch):
     monkeypatch.setenv("NERFEDIT_CACHE", str(scene / "cache"))
     test_cameras = scene / "data" / "transforms_test.json"
-    assert main(["edit", "--run", str(mesh_run), "--field", "mesh", "--edit", str(scene / "edit.json"),
-                 "--out", str(scene / "edit"), "--render-cameras", str(test_cameras)]) == 0
+    assert (
+        main(
+            [
+                "edit",
+                "--run",
+                str(mesh_run),
+                "--field",
+                "mesh",
+                "--edit",
+                str(scene / "edit.json"),
+                "--out",
+                str(scene / "edit"),
+                "--render-cameras",
+                str(test_cameras),
+            ]
+        )
+        == 0
+    )
     deformed = SurfaceMesh.load(scene / "edit" / "deformed_mesh.ply")
     render_ground_truth(scene / "data" / "mesh.ply", deformed.vertices, test_cameras, scene / "gt")
-    assert main(["render", "--run", str(mesh_run), "--deformation", str(scene / "edit" / "deformation.npz"),
-                 "--cameras", str(test_cameras), "--out", str(scene / "after"), "--supersample", "2"]) == 0
-    assert main(["eval", "--pred", str(scene / "after"), "--gt", str(scene / "gt"),
-                 "--json-out", str(scene / "after.json")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--run",
+                str(mesh_run),
+                "--deformation",
+                str(scene / "edit" / "deformation.npz"),
+                "--cameras",
+                str(test_cameras),
+                "--out",
+                str(scene / "after"),
+                "--supersample",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            ["eval", "--pred", str(scene / "after"), "--gt", str(scene / "gt"), "--json-out", str(scene / "after.json")]
+        )
+        == 0
+    )
     edited = json.loads((scene / "after.json").read_text())["mean"]
     assert edited["psnr"] > 33.0 and edited["ssim"] > 0.98, edited
     # `edit --render-cameras` rendered the same edit (one ray per pixel: aliased, so a looser bound)
-    assert main(["eval", "--pred", str(scene / "edit" / "renders"), "--gt", str(scene / "gt"),
-                 "--json-out", str(scene / "edit.json")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--pred",
+                str(scene / "edit" / "renders"),
+                "--gt",
+                str(scene / "gt"),
+                "--json-out",
+                str(scene / "edit.json"),
+            ]
+        )
+        == 0
+    )
     assert json.loads((scene / "edit.json").read_text())["mean"]["psnr"] > 25.0
     # the unedited field is not the edited one: its renders miss the ground truth of the edit
-    assert main(["render", "--run", str(mesh_run), "--cameras", str(test_cameras), "--out", str(scene / "before"),
-                 "--supersample", "2"]) == 0
-    assert main(["eval", "--pred", str(scene / "before"), "--gt", str(scene / "gt"),
-                 "--json-out", str(scene / "before.json")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--run",
+                str(mesh_run),
+                "--cameras",
+                str(test_cameras),
+                "--out",
+                str(scene / "before"),
+                "--supersample",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "eval",
+                "--pred",
+                str(scene / "before"),
+                "--gt",
+                str(scene / "gt"),
+                "--json-out",
+                str(scene / "before.json"),
+            ]
+        )
+        == 0
+    )
     assert json.loads((scene / "before.json").read_text())["mean"]["psnr"] < edited["psnr"] - 3.0
 
 
 def test_unedited_mesh_field_render_reproduces_the_dataset(scene, mesh_run, tmp_path):
-    assert main(["render", "--run", str(mesh_run), "--cameras", str(scene / "data" / "transforms_test.json"),
-                 "--out", str(tmp_path / "r"), "--supersample", "2"]) == 0
-    assert main(["eval", "--pred", str(tmp_path / "r"), "--gt", str(scene / "data" / "test"),
-                 "--json-out", str(tmp_path / "m.json")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--run",
+                str(mesh_run),
+                "--cameras",
+                str(scene / "data" / "transforms_test.json"),
+                "--out",
+                str(tmp_path / "r"),
+                "--supersample",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "eval",
+                "--pred",
+                str(tmp_path / "r"),
+                "--gt",
+                str(scene / "data" / "test"),
+                "--json-out",
+                str(tmp_path / "m.json"),
+            ]
+        )
+        == 0
+    )
     assert json.loads((tmp_path / "m.json").read_text())["mean"]["psnr"] > 35.0
 
 
 def test_run_errors_are_one_line(scene, mesh_run, tmp_path, capsys):
     assert main(["render", "--run", str(tmp_path), "--cameras", str(scene / "data"), "--out", str(tmp_path / "o")]) == 2
     assert "not a run folder" in capsys.readouterr().err
-    assert main(["edit", "--run", str(mesh_run), "--field", "nerf", "--edit", str(scene / "edit.json"),
-                 "--out", str(tmp_path / "e")]) == 2
+    assert (
+        main(
+            [
+                "edit",
+                "--run",
+                str(mesh_run),
+                "--field",
+                "nerf",
+                "--edit",
+                str(scene / "edit.json"),
+                "--out",
+                str(tmp_path / "e"),
+            ]
+        )
+        == 2
+    )
     assert "holds a 'mesh' field" in capsys.readouterr().err
     broken = tmp_path / "broken"
     broken.mkdir()
@@ -101,8 +235,16 @@ def test_run_errors_are_one_line(scene, mesh_run, tmp_path, capsys):
 
 
 def test_trained_run_records_its_data_relative_and_camera_distance(scene, tmp_path):
-    config = ["--field-options.resolution", "16", "--field-options.upsample-steps", "--field-options.occupancy-resolution",
-              "8", "--field-options.train.max-steps", "3", "--field-options.train.no-progress"]
+    config = [
+        "--field-options.resolution",
+        "16",
+        "--field-options.upsample-steps",
+        "--field-options.occupancy-resolution",
+        "8",
+        "--field-options.train.max-steps",
+        "3",
+        "--field-options.train.no-progress",
+    ]
     assert main(["train", "--data", str(scene / "data"), "--out", str(tmp_path / "run"), *config]) == 0
     run = open_run(tmp_path / "run")
     assert run.backend == "nerf" and run.data == (scene / "data").resolve()
@@ -115,17 +257,61 @@ def test_trained_run_records_its_data_relative_and_camera_distance(scene, tmp_pa
 def test_animated_edit_renders_every_frame(scene, mesh_run, tmp_path, monkeypatch):
     monkeypatch.setenv("NERFEDIT_CACHE", str(scene / "cache"))
     (tmp_path / "anim.json").write_text(json.dumps({**EDIT, "frames": 2}))
-    assert main(["edit", "--run", str(mesh_run), "--edit", str(tmp_path / "anim.json"), "--out", str(tmp_path / "e")]) == 0
+    assert (
+        main(["edit", "--run", str(mesh_run), "--edit", str(tmp_path / "anim.json"), "--out", str(tmp_path / "e")]) == 0
+    )
     cameras = scene / "data" / "transforms_test.json"
-    assert main(["render", "--run", str(mesh_run), "--deformation", str(tmp_path / "e" / "deformation.npz"),
-                 "--cameras", str(cameras), "--out", str(tmp_path / "r")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--run",
+                str(mesh_run),
+                "--deformation",
+                str(tmp_path / "e" / "deformation.npz"),
+                "--cameras",
+                str(cameras),
+                "--out",
+                str(tmp_path / "r"),
+            ]
+        )
+        == 0
+    )
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["config.yml", "frame_0000", "frame_0001"]
-    assert main(["render", "--run", str(mesh_run), "--deformation", str(tmp_path / "e" / "deformation.npz"),
-                 "--cameras", str(cameras), "--out", str(tmp_path / "one"), "--frame", "1"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--run",
+                str(mesh_run),
+                "--deformation",
+                str(tmp_path / "e" / "deformation.npz"),
+                "--cameras",
+                str(cameras),
+                "--out",
+                str(tmp_path / "one"),
+                "--frame",
+                "1",
+            ]
+        )
+        == 0
+    )
     for name in ("r_0.png", "r_1.png", "r_2.png"):  # --frame 1 renders what the full animation's frame 1 holds
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "r" / "frame_0001" / name).read_bytes()
     # frame 0 of "frames": 2 is the rest pose: it renders the unedited field
     assert main(["render", "--run", str(mesh_run), "--cameras", str(cameras), "--out", str(tmp_path / "rest")]) == 0
-    assert main(["eval", "--pred", str(tmp_path / "r" / "frame_0000"), "--gt", str(tmp_path / "rest"),
-                 "--json-out", str(tmp_path / "m.json")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--pred",
+                str(tmp_path / "r" / "frame_0000"),
+                "--gt",
+                str(tmp_path / "rest"),
+                "--json-out",
+                str(tmp_path / "m.json"),
+            ]
+        )
+        == 0
+    )
     assert json.loads((tmp_path / "m.json").read_text())["mean"]["psnr"] > 40.0

@@ -11,11 +11,11 @@ import pytest
 import torch
 import trimesh
 
-from nerfedit_plugin.edit import proxy as proxy_module
-from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.bending.locate import locate_brute_force
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.edit import proxy as proxy_module
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, build_proxy, cached_proxy, proxy_cache_key, resolve_offset
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import DEGENERATE_VOLUME_RATIO, boundary_faces, clean_tets, tet_signed_volumes
 
 FAST = ProxyConfig(cage_faces=400, edge_length_fac=0.1)
@@ -43,7 +43,7 @@ def open_hemisphere() -> SurfaceMesh:
     return SurfaceMesh.from_trimesh(half)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def built(make) -> tuple[SurfaceMesh, TetProxy]:
     """One FAST build per test mesh, shared by the tests that only read it."""
     mesh = make()

@@ -52,7 +52,15 @@ def test_fixed_handles_stay_and_transform_is_similarity_about_pivot():
 
 
 def test_frames_interpolate_from_rest_with_slerp():
-    s = spec([{"select": {"indices": [0]}, "transform": {"rotate": {"axis": [0, 0, 1], "degrees": 120, "center": [0, 0, 0]}}}], frames=3)
+    s = spec(
+        [
+            {
+                "select": {"indices": [0]},
+                "transform": {"rotate": {"axis": [0, 0, 1], "degrees": 120, "center": [0, 0, 0]}},
+            }
+        ],
+        frames=3,
+    )
     point = np.array([[1.0, 0.0, 0.0]])
     _, targets = s.handle_targets(point)
     assert np.allclose(targets[0, 0], point[0])  # frame 0 is the rest pose
@@ -82,17 +90,41 @@ def test_later_handle_wins_on_overlap():
 BAD = [
     ({"handles": [], "frames": 1}, "handles: expected a non-empty list"),
     ({"handels": []}, "handels: unknown key"),
-    ({"handles": [{"select": {"box": {"min": [0, 0], "max": [1, 1, 1]}}, "fixed": True}]}, "handles[0].select.box.min: expected 3 numbers"),
-    ({"handles": [{"select": {"box": {"min": [0, 0, 0], "max": [1, 1, float("nan")]}}, "fixed": True}]}, "handles[0].select.box.max: contains NaN"),
-    ({"handles": [{"select": {"box": {"min": [1, 0, 0], "max": [0, 1, 1]}}, "fixed": True}]}, "handles[0].select.box: min exceeds max"),
-    ({"handles": [{"select": {"sphere": {"center": [0, 0, 0], "radius": -1}}, "fixed": True}]}, "handles[0].select.sphere.radius: must be > 0"),
+    (
+        {"handles": [{"select": {"box": {"min": [0, 0], "max": [1, 1, 1]}}, "fixed": True}]},
+        "handles[0].select.box.min: expected 3 numbers",
+    ),
+    (
+        {"handles": [{"select": {"box": {"min": [0, 0, 0], "max": [1, 1, float("nan")]}}, "fixed": True}]},
+        "handles[0].select.box.max: contains NaN",
+    ),
+    (
+        {"handles": [{"select": {"box": {"min": [1, 0, 0], "max": [0, 1, 1]}}, "fixed": True}]},
+        "handles[0].select.box: min exceeds max",
+    ),
+    (
+        {"handles": [{"select": {"sphere": {"center": [0, 0, 0], "radius": -1}}, "fixed": True}]},
+        "handles[0].select.sphere.radius: must be > 0",
+    ),
     ({"handles": [{"select": {"box": {}, "sphere": {}}, "fixed": True}]}, "handles[0].select: expected exactly one"),
     ({"handles": [{"select": {"cone": {}}, "fixed": True}]}, "handles[0].select.cone: unknown key"),
-    ({"handles": [{"select": {"indices": [1.5]}, "fixed": True}]}, "handles[0].select.indices: expected a non-empty list of integer"),
+    (
+        {"handles": [{"select": {"indices": [1.5]}, "fixed": True}]},
+        "handles[0].select.indices: expected a non-empty list of integer",
+    ),
     ({"handles": [{"select": {"indices": [1]}}]}, "handles[0]: needs exactly one of"),
-    ({"handles": [{"select": {"indices": [1]}, "fixed": True, "transform": {"scale": 2}}]}, "handles[0]: needs exactly one of"),
-    ({"handles": [{"select": {"indices": [1]}, "transform": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}]}, "handles[0].transform.rotate.axis: is the zero vector"),
-    ({"handles": [{"select": {"indices": [1]}, "transform": {"rotate": {"axis": [0, 0, 1]}}}]}, "handles[0].transform.rotate.degrees: missing"),
+    (
+        {"handles": [{"select": {"indices": [1]}, "fixed": True, "transform": {"scale": 2}}]},
+        "handles[0]: needs exactly one of",
+    ),
+    (
+        {"handles": [{"select": {"indices": [1]}, "transform": {"rotate": {"axis": [0, 0, 0], "degrees": 3}}}]},
+        "handles[0].transform.rotate.axis: is the zero vector",
+    ),
+    (
+        {"handles": [{"select": {"indices": [1]}, "transform": {"rotate": {"axis": [0, 0, 1]}}}]},
+        "handles[0].transform.rotate.degrees: missing",
+    ),
     ({"handles": [{"select": {"indices": [1]}, "transform": {"shear": 1}}]}, "handles[0].transform.shear: unknown key"),
     ({"handles": [{"select": {"indices": [1]}, "transform": {"scale": 0}}]}, "handles[0].transform.scale: must be > 0"),
     ({"handles": [{"select": {"indices": [1]}, "fixed": "yes"}]}, "handles[0].fixed: expected true or false"),

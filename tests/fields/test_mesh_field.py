@@ -8,17 +8,17 @@ import pytest
 import torch
 import trimesh
 
+from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.data.datasets import load_dataset
-from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.data.synthetic import GenerateConfig, bend, colorize, generate_dataset, render_mesh
+from nerfedit_plugin.edit.lift import Lift
+from nerfedit_plugin.edit.proxy import TetProxy, embed_points
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.mesh_field import MeshField, MeshFieldConfig
-from nerfedit_plugin.edit.lift import Lift
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.edit.proxy import TetProxy, embed_points
 from nerfedit_plugin.render.renderer import RenderConfig, render_image
 from nerfedit_plugin.training.metrics import psnr
-from nerfedit_plugin.data.synthetic import GenerateConfig, bend, colorize, generate_dataset, render_mesh
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +67,11 @@ def test_mesh_without_colours_or_without_a_mesh_is_an_error(sphere):
 def test_renders_what_the_generator_renders(tmp_path):
     """A dataset written by the generator (supersampled, 8-bit PNGs) and the mesh field built from its mesh.ply,
     rendered from the same cameras with the same supersampling: near-identical images."""
-    root = generate_dataset(GenerateConfig(out=tmp_path / "cow", mesh="sample:cow", n_train=3, n_val=1, n_test=1,
-                                           resolution=64, supersample=2))
+    root = generate_dataset(
+        GenerateConfig(
+            out=tmp_path / "cow", mesh="sample:cow", n_train=3, n_val=1, n_test=1, resolution=64, supersample=2
+        )
+    )
     dataset = load_dataset(root, "train")
     field = MeshField.from_mesh(SurfaceMesh.load(root / "mesh.ply"))
     config = RenderConfig(n_samples=256, background=dataset.background)

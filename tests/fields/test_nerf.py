@@ -49,9 +49,15 @@ def test_spherical_harmonics_are_orthonormal():
 
 
 def random_field(seed=0, **overrides) -> NerfField:
-    config = NerfConfig(resolution=16, upsample_steps=(), features=4, decoder="mlp", occupancy_resolution=8,
-                        occupancy_dilation=0,
-                        **overrides)
+    config = NerfConfig(
+        resolution=16,
+        upsample_steps=(),
+        features=4,
+        decoder="mlp",
+        occupancy_resolution=8,
+        occupancy_dilation=0,
+        **overrides,
+    )
     field = config.setup(scene_bbox=BOX)
     with torch.no_grad():
         field.grid.table[:, 0] = torch.randn(17**3, generator=torch.Generator().manual_seed(seed)) * 3 - 2

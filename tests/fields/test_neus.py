@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.io.checkpoint import load_field
 from nerfedit_plugin.data.datasets import load_dataset
+from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField
+from nerfedit_plugin.io.checkpoint import load_field
 from nerfedit_plugin.render.renderer import RenderConfig
-from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 from nerfedit_plugin.training.trainer import evaluate
 
 BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
@@ -63,7 +63,9 @@ def test_initial_field_is_the_signed_distance_of_a_sphere():
     points, rho = points[rho > RADIUS / 2], rho[rho > RADIUS / 2]
     error = (sdf(field, points) - (points.norm(dim=1) - RADIUS)).abs()
     assert error.max() > 1e-4 and (error <= 3 * h * h / (8 * rho) + 1e-6).all()
-    assert field.kind == "sdf" and float(field.sharpness().detach() * field.cell) == pytest.approx(field.config.sharpness_init)
+    assert field.kind == "sdf" and float(field.sharpness().detach() * field.cell) == pytest.approx(
+        field.config.sharpness_init
+    )
 
 
 def test_eikonal_loss_vanishes_on_exact_distance_fields():
@@ -87,8 +89,9 @@ def test_eikonal_loss_vanishes_on_exact_distance_fields():
 
 
 def test_occupancy_band_is_exact_and_conservative():
-    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=8, occupancy_dilation=0,
-                       sharpness_init=1.0).setup(scene_bbox=BOX)
+    field = NeusConfig(
+        resolution=32, upsample_steps=(), occupancy_resolution=8, occupancy_dilation=0, sharpness_init=1.0
+    ).setup(scene_bbox=BOX)
     with torch.no_grad():
         field.grid.table[:, 0] += torch.randn(33**3, generator=torch.Generator().manual_seed(2))
     field.update_occupancy()
@@ -127,8 +130,13 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
 
     ball = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
     SurfaceMesh(ball.vertices, ball.faces).save(tmp_path / "ball.ply")
-    data = load_dataset(generate_dataset(GenerateConfig(out=tmp_path / "data", mesh=str(tmp_path / "ball.ply"),
-                                                        resolution=48, n_train=12, n_val=1, n_test=1)))
+    data = load_dataset(
+        generate_dataset(
+            GenerateConfig(
+                out=tmp_path / "data", mesh=str(tmp_path / "ball.ply"), resolution=48, n_train=12, n_val=1, n_test=1
+            )
+        )
+    )
     field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=data.scene_bbox)
     field.init_from_hull(data.cameras, data.alpha > 0)
     vertices = field.grid.vertex_points().reshape(-1, 3)

@@ -18,9 +18,15 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from deformers.arap import ArapConfig, ArapDeformer
-from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, ArapSolver, cotangent_weights, fit_rotations, fit_rotations_numpy
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.arap import (
+    ELEMENT_EDGES,
+    ArapSolver,
+    cotangent_weights,
+    fit_rotations,
+    fit_rotations_numpy,
+)
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
 
@@ -48,7 +54,7 @@ def tet_grid(n: int = 6, jitter: float = 0.25, seed: int = 0) -> tuple[np.ndarra
     return vertices, orient_tets(vertices, tets)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def marching_cubes_torus(resolution: int = 40) -> tuple[np.ndarray, np.ndarray]:
     from skimage.measure import marching_cubes
 
@@ -149,7 +155,7 @@ def test_handles_exact_and_rigid_motion_reproduced():
     assert np.abs(result.vertices - moved).max() <= 1e-6 * bbox(vertices)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def decimated_bunny(faces: int = 5000) -> tuple[np.ndarray, np.ndarray]:
     import pymeshlab
 
@@ -308,8 +314,10 @@ def cow_spec(vertices: np.ndarray, frames: int) -> dict:
     head = vertices[np.argmax(vertices[:, 2])]
     return {
         "handles": [
-            {"select": {"box": {"min": lo.tolist(), "max": [hi[0], lo[1] + 0.2 * (hi[1] - lo[1]), hi[2]]}},
-             "fixed": True},
+            {
+                "select": {"box": {"min": lo.tolist(), "max": [hi[0], lo[1] + 0.2 * (hi[1] - lo[1]), hi[2]]}},
+                "fixed": True,
+            },
             {
                 "select": {"sphere": {"center": head.tolist(), "radius": 0.15 * bbox(vertices)}},
                 "transform": {"translate": [0, 0.1, 0], "rotate": {"axis": [1, 0, 0], "degrees": 30}},

@@ -14,8 +14,9 @@ from nerfedit_plugin.io.run import extract_mesh, open_run, train_run
 @pytest.fixture
 def mesh_run(tmp_path, capsule):
     colorize(capsule, 0).save(tmp_path / "capsule.ply")
-    run, log = train_run("mesh", MeshFieldConfig(), tmp_path / "capsule.ply", tmp_path / "run", device="cpu",
-                         record={"what": "recorded"})
+    run, log = train_run(
+        "mesh", MeshFieldConfig(), tmp_path / "capsule.ply", tmp_path / "run", device="cpu", record={"what": "recorded"}
+    )
     assert log == {}
     return run
 

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.data.cameras import Cameras, generate_rays, look_at
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, look_at
+from nerfedit_plugin.data.synthetic import colorize, render_mesh
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.mesh_field import MeshField
 from nerfedit_plugin.render.renderer import (
@@ -21,7 +22,6 @@ from nerfedit_plugin.render.renderer import (
     render_rays,
     sampling_box,
 )
-from nerfedit_plugin.data.synthetic import colorize, render_mesh
 
 COLOR_POS = torch.tensor([[1.5, -0.7, 0.3], [0.4, 1.1, -1.2], [-0.9, 0.2, 1.4]])
 COLOR_DIR = torch.tensor([[0.8, 0.1, -0.5], [-0.3, 0.9, 0.2], [0.2, -0.6, 0.7]])
@@ -271,8 +271,9 @@ def test_rigid_deformation_equals_moving_the_camera_inversely(kind, tolerance, f
     for i in range(2):
         origins, directions = flat_rays(cams, i)
         bounds = ray_box(origins, directions, sampling_box(field, deformation, RIGID_FRAME))
-        edited = render_rays(field, origins, directions, config, deformation=deformation, frame=RIGID_FRAME,
-                             bounds=bounds)
+        edited = render_rays(
+            field, origins, directions, config, deformation=deformation, frame=RIGID_FRAME, bounds=bounds
+        )
         expected = render_rays(field, *flat_rays(moved_cams, i), config, bounds=bounds)
         plain = render_rays(field, origins, directions, config, bounds=bounds)
         assert (edited.rgb - plain.rgb).abs().max() > 0.3  # the edit is visible
@@ -298,8 +299,9 @@ def test_vacated_space_renders_the_background(fields, capsule, deformation):
     truth, alpha_moved, _ = render_mesh(mesh.with_vertices(mesh.vertices + SHIFT), cams, background=background)
     _, alpha_rest, _ = render_mesh(mesh, cams)
     for i in range(2):
-        image = render_image(field, cams, i, RenderConfig(background=background), deformation=deformation,
-                             frame=SHIFT_FRAME).numpy()
+        image = render_image(
+            field, cams, i, RenderConfig(background=background), deformation=deformation, frame=SHIFT_FRAME
+        ).numpy()
         vacated = (alpha_rest[i] > 0) & (alpha_moved[i] == 0)
         assert vacated.sum() > 50
         assert np.array_equal(image[vacated], np.broadcast_to(np.float32(background), (vacated.sum(), 3)))

@@ -44,12 +44,16 @@ class FollowDeformer(Deformer):
         idx, _ = edit.handle_targets(rest.vertices)  # validates selections against the mesh
         moving = [h for h in edit.handles if h.transform is not None]
         self.handle = moving[-1] if moving else None
-        self.pivot = rest.vertices[self.handle.selection.indices(rest.vertices, edit.source)].mean(0) if moving else None
+        self.pivot = (
+            rest.vertices[self.handle.selection.indices(rest.vertices, edit.source)].mean(0) if moving else None
+        )
         self.times = edit.times
 
     def deform_points(self, points, frame):
         points = np.asarray(points, dtype=np.float64)
-        return points.copy() if self.handle is None else self.handle.transform.apply(points, self.times[frame], self.pivot)
+        return (
+            points.copy() if self.handle is None else self.handle.transform.apply(points, self.times[frame], self.pivot)
+        )
 
     def deform(self):
         return np.stack([self.deform_points(self.rest, f) for f in range(len(self.times))])
@@ -242,7 +246,9 @@ def test_hooks_and_explicit_variants_for_plugins_without_handles():
     check_deformer(config_of(Shift), edit=edit, skip=("config",))  # identity/rigid through the hooks
     with pytest.raises(ValueError, match=r"pass identity_edit= or skip=\('identity',\)"):
         check_identity(config_of(NoHooks), edit=edit)
-    check_deformer(config_of(NoHooks), edit=edit, identity_edit={"amount": 0}, rigid_edit={"amount": 1.0}, skip=("config",))
+    check_deformer(
+        config_of(NoHooks), edit=edit, identity_edit={"amount": 0}, rigid_edit={"amount": 1.0}, skip=("config",)
+    )
     with pytest.raises(AssertionError, match=r"identity edit moved"):  # an explicit dict is used as given
         check_identity(config_of(NoHooks), edit=edit, identity_edit={"amount": 0.1})
     with pytest.raises(ValueError, match=r"has no 'handles' key"):
@@ -260,9 +266,11 @@ def test_malformed_variants(tmp_path):
     rest = default_mesh()
     edit = default_edit(rest)
     cases = dict(malformed_edits(edit, rest, {"handles"}))
-    assert {"unknown top-level key", "out-of-range handle index 1000000000", "out-of-range handle index -1"} <= set(cases)
+    assert {"unknown top-level key", "out-of-range handle index 1000000000", "out-of-range handle index -1"} <= set(
+        cases
+    )
     nans = [c for c in cases if c.startswith("NaN at ")]
-    assert len(nans) == 3 and all(math.isnan(_leaf(cases[c], c[len("NaN at "):])) for c in nans)
+    assert len(nans) == 3 and all(math.isnan(_leaf(cases[c], c[len("NaN at ") :])) for c in nans)
     (tmp_path / "file.ply").write_text("")
     with_file = dict(malformed_edits({"handles": edit["handles"], "mesh": "file.ply"}, rest, {"handles"}, tmp_path))
     assert with_file["missing file for 'mesh'"]["mesh"] == "nerfedit-kit-missing-file.ply"
@@ -347,8 +355,10 @@ def test_call_keywords_override_the_bound_ones(monkeypatch, tmp_path):
     check = dict(deformer_checks(FollowConfig(), edit={"frames": 1}, bad_edits=[{"a": 1}]))["malformed"]
     check()
     check(base_dir=tmp_path, bad_edits=())
-    assert seen == [(None, {"frames": 1}, {"base_dir": None, "bad_edits": [{"a": 1}]}),
-                    (None, {"frames": 1}, {"base_dir": tmp_path, "bad_edits": []})]
+    assert seen == [
+        (None, {"frames": 1}, {"base_dir": None, "bad_edits": [{"a": 1}]}),
+        (None, {"frames": 1}, {"base_dir": tmp_path, "bad_edits": []}),
+    ]
 
 
 def test_field_checks_share_one_lazily_built_field(monkeypatch):
@@ -380,14 +390,28 @@ def test_pytest_reports_the_failing_property_by_name(pytester):
         def test_conformance(check):
             check()
     ''')
-    pytester.makepyfile(test_plugin="\n".join([
-        "import dataclasses", "import numpy as np", "import tyro",
-        "from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig",
-        "from nerfedit_plugin.testing import parametrize_with_checks", "",
-        inspect.getsource(FollowDeformer), inspect.getsource(IgnoresIdentity), config]))
+    pytester.makepyfile(
+        test_plugin="\n".join(
+            [
+                "import dataclasses",
+                "import numpy as np",
+                "import tyro",
+                "from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig",
+                "from nerfedit_plugin.testing import parametrize_with_checks",
+                "",
+                inspect.getsource(FollowDeformer),
+                inspect.getsource(IgnoresIdentity),
+                config,
+            ]
+        )
+    )
     result = pytester.runpytest("-q", "-p", "no:cacheprovider")
     result.assert_outcomes(passed=len(CHECKS) - 2, failed=1)
-    result.stdout.fnmatch_lines(["*_ test_conformance[[]BrokenConfig-identity[]] _*",
-                                 "E * BrokenConfig: identity edit moved vertices by up to 0.01 *",
-                                 "FAILED test_plugin.py::test_conformance[[]BrokenConfig-identity[]]*"])
+    result.stdout.fnmatch_lines(
+        [
+            "*_ test_conformance[[]BrokenConfig-identity[]] _*",
+            "E * BrokenConfig: identity edit moved vertices by up to 0.01 *",
+            "FAILED test_plugin.py::test_conformance[[]BrokenConfig-identity[]]*",
+        ]
+    )
     assert "BrokenConfig-rigid" not in result.stdout.str()

@@ -53,10 +53,17 @@ def test_training_fits_the_colour_and_honours_the_step_budget():
             return True
         return False
 
-    config = TrainerConfig(max_steps=150, max_seconds=60, batch_rays=64, n_samples=8, eval_every_seconds=0,
-                           log_every=10, progress=False)
-    log = train(field, data, config, param_groups=lambda: [{"params": [field.logit], "lr": 0.1}],
-                callback=callback, eval_dataset=data)
+    config = TrainerConfig(
+        max_steps=150, max_seconds=60, batch_rays=64, n_samples=8, eval_every_seconds=0, log_every=10, progress=False
+    )
+    log = train(
+        field,
+        data,
+        config,
+        param_groups=lambda: [{"params": [field.logit], "lr": 0.1}],
+        callback=callback,
+        eval_dataset=data,
+    )
     assert log["steps"] == 150 and field.swaps == 1
     assert [t for t, _ in log["eval"]][0] == 0.0 and len(log["eval"]) == 2
     assert log["eval"][-1][1] > 35.0 > log["eval"][0][1]  # the constant colour is learnt (sigmoid(0) = 0.5 at start)
@@ -79,8 +86,7 @@ def test_cpu_clock_counts_the_training_thread_and_bad_clocks_are_rejected():
 
     data = flat_dataset()
     field = ConstantField(FieldConfig(), data.scene_bbox)
-    config = TrainerConfig(max_steps=20, batch_rays=64, n_samples=8, eval_every_seconds=0, progress=False,
-                           clock="cpu")
+    config = TrainerConfig(max_steps=20, batch_rays=64, n_samples=8, eval_every_seconds=0, progress=False, clock="cpu")
     start = time.perf_counter()
     log = train(field, data, config)
     assert log["steps"] == 20 and 0.0 < log["train_seconds"] <= time.perf_counter() - start  # CPU time ≤ wall time

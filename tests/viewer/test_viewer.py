@@ -10,8 +10,8 @@ import torch
 from PIL import Image
 
 from nerfedit_plugin.cli.app import main
-from nerfedit_plugin.viewer.layers import edit_geometries
 from nerfedit_plugin.render.views import turntable_cameras, write_gif
+from nerfedit_plugin.viewer.layers import edit_geometries
 
 EDIT = {
     "handles": [
@@ -26,8 +26,22 @@ def edit_dir(capsule, proxy_cache, tmp_path_factory):
     root = tmp_path_factory.mktemp("view")
     capsule.save(root / "capsule.ply")
     (root / "edit.json").write_text(json.dumps(EDIT))
-    assert main(["edit", "--mesh", str(root / "capsule.ply"), "--edit", str(root / "edit.json"),
-                 "--out", str(root / "edit"), "--cache-dir", str(proxy_cache)]) == 0
+    assert (
+        main(
+            [
+                "edit",
+                "--mesh",
+                str(root / "capsule.ply"),
+                "--edit",
+                str(root / "edit.json"),
+                "--out",
+                str(root / "edit"),
+                "--cache-dir",
+                str(proxy_cache),
+            ]
+        )
+        == 0
+    )
     return root / "edit"
 
 
@@ -54,7 +68,9 @@ def test_screenshot_renders_rest_and_edit_side_by_side(edit_dir, capsule, tmp_pa
 
 
 def test_view_errors(edit_dir, tmp_path, capsys):
-    assert main(["view", "--edit", str(tmp_path), "--mesh", "sample:bone", "--screenshot", str(tmp_path / "a.png")]) == 2
+    assert (
+        main(["view", "--edit", str(tmp_path), "--mesh", "sample:bone", "--screenshot", str(tmp_path / "a.png")]) == 2
+    )
     assert "not an edit folder" in capsys.readouterr().err
     assert main(["view", "--edit", str(edit_dir), "--show", "tets", "--screenshot", str(tmp_path / "a.png")]) == 2
     assert "unknown layer" in capsys.readouterr().err
@@ -85,8 +101,24 @@ def test_cage_handles_are_drawn_on_the_cage(capsule, proxy_cache, tmp_path):
     """A cage spec's handles select cage vertices, so the viewer resolves them on the rest cage, not on the mesh."""
     capsule.save(tmp_path / "capsule.ply")
     (tmp_path / "cage.json").write_text(json.dumps({"cage": "auto", **EDIT}))
-    assert main(["edit", "--mesh", str(tmp_path / "capsule.ply"), "--deformer", "cage", "--edit",
-                 str(tmp_path / "cage.json"), "--out", str(tmp_path / "edit"), "--cache-dir", str(proxy_cache)]) == 0
+    assert (
+        main(
+            [
+                "edit",
+                "--mesh",
+                str(tmp_path / "capsule.ply"),
+                "--deformer",
+                "cage",
+                "--edit",
+                str(tmp_path / "cage.json"),
+                "--out",
+                str(tmp_path / "edit"),
+                "--cache-dir",
+                str(proxy_cache),
+            ]
+        )
+        == 0
+    )
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
     cage = SurfaceMesh.load(tmp_path / "edit" / "cage_rest.ply")

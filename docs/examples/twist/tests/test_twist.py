@@ -1,18 +1,19 @@
 """The twist plugin's own tests: nerfedit's conformance kit plus the twist's defining property."""
 
 import numpy as np
+from nerfedit_twist import TwistConfig
 
 from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.testing import default_mesh, parametrize_with_checks
-from nerfedit_twist import TwistConfig
 
 EDIT = {"twist": {"axis": [0, 0, 1], "degrees": 90}, "frames": 2}
 
 
 # One case per property of nerfedit's conformance kit (TwistConfig-output, TwistConfig-identity, ...). A twist is
 # never a rigid motion, so there is no rigid variant of the edit to check.
-@parametrize_with_checks(TwistConfig(), edit=EDIT, identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}},
-                         skip=("rigid",))
+@parametrize_with_checks(
+    TwistConfig(), edit=EDIT, identity_edit={"twist": {"axis": [0, 0, 1], "degrees": 0}}, skip=("rigid",)
+)
 def test_conformance_kit(check):
     check()
 
