@@ -4,8 +4,8 @@
    head and ears rotated): wall time (precompute + iterations) until our solver stops (relative energy decrease
    < 1e-6) vs libigl's ``arap_precomputation`` + ``arap_solve`` iterated until its energy reaches ours (or stops
    decreasing, or hits the iteration cap). Target ratio ≤ 0.5.
-2. Tet ARAP (ELEMENTS) on a pytetwild sphere (27k vertices, 155k tets; cached in /tmp): precompute + 10 iterations, both.
-   Target ratio ≤ 0.5.
+2. Tet ARAP (ELEMENTS) on a pytetwild sphere (27k vertices, 155k tets; cached in /tmp): precompute + 10 iterations,
+   both. Target ratio ≤ 0.5.
 
 Usage: ``python bench/bench_arap.py [--quick]`` (quick: bunny decimated to ~5k vertices, ~4k-vertex tets).
 """

@@ -6,8 +6,8 @@ same points (uniform in the tets' bounding box enlarged by 10 %, a mix of inside
 same run. Meshes: real pytetwild tet meshes (``optimize=True, epsilon=5e-3``) of the decimated pymeshlab bunny
 (~11k tets) and of an icosphere (~2k tets), cached in ``/tmp``. Exactness: tet ids of the grid answer vs
 ``locate_brute_force`` (the oracle) on the small mesh. Also timed: ``DeformationField.to_canonical`` on the
-same number of points (the bunny proxy twisted about its vertical axis). Times are the best of a few runs (wall clock); VTK is
-single-threaded, so TetLocator is reported with torch's default threads and with one thread.
+same number of points (the bunny proxy twisted about its vertical axis). Times are the best of a few runs (wall
+clock); VTK is single-threaded, so TetLocator is reported with torch's default threads and with one thread.
 
     python bench/bench_locate.py [--quick]
 """

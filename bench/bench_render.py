@@ -155,7 +155,9 @@ def main() -> None:
         for repeat in range(args.repeats + 1):  # interleaved rounds, the first is a warm-up
             for key, bending in (("unedited", None), ("edited", deformation)):
                 seconds = clocked(
-                    lambda: render_image(subject, cams, 0, config, deformation=bending, supersample=supersample)
+                    lambda subject=subject, bending=bending: render_image(
+                        subject, cams, 0, config, deformation=bending, supersample=supersample
+                    )
                 )
                 times[key] += [seconds] if repeat else []
         for clock, column in (("wall", 0), ("cpu", 1)):

@@ -95,7 +95,7 @@ def main() -> None:
     stacks = [rng.normal(size=(4 * n_bones, 3)) for _ in range(pose_reps)]
     t_anchor_pose = best_of(lambda: lbs_m @ stacks[state["i"] % pose_reps], pose_reps)
     for method in ("dqs", "lbs"):
-        t = best_of(lambda: new_pose(method), pose_reps)
+        t = best_of(lambda method=method: new_pose(method), pose_reps)
         print(
             f"new pose {method.upper()} (FK + skinning): {1e3 * t:7.2f} ms = {1e3 * t / TARGET_POSE_MS:5.2f} x target "
             f"({TARGET_POSE_MS:g} ms), {t / t_anchor_pose:5.2f} x anchor"

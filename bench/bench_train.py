@@ -92,7 +92,7 @@ def main() -> None:
     field, ours = run(f"{name} (defaults)", BACKENDS[name](), train, test, seconds, args.clock)
     _, floor = run("floor (plain 96³ grid)", floor_config(), train, test, seconds, args.clock)
     print(f"\n{'seconds':>8} {name + ' PSNR':>10} {'floor PSNR':>11}")
-    for (t, p), (t2, p2) in zip(ours, floor):
+    for (t, p), (_t2, p2) in zip(ours, floor):
         print(f"{t:8.1f} {p:10.2f} {p2:11.2f}")
     gain = ours[-1][1] - floor[-1][1]
     print(

@@ -105,8 +105,8 @@ def run_demo(
     record: Any = None,
 ) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns ``{"out", "seconds" (per stage), "before" and
-    "after" (mean PSNR/SSIM/LPIPS, see the module docstring), "edit" (the edit report), "files"}``, also written to ``out/summary.json``;
-    ``record`` (the command line's args) goes to ``out/config.yml``."""
+    "after" (mean PSNR/SSIM/LPIPS, see the module docstring), "edit" (the edit report), "files"}``, also written to
+    ``out/summary.json``; ``record`` (the command line's args) goes to ``out/config.yml``."""
     sizes = PRESETS[preset]
     registry = discover()
     clock = Stopwatch(on_stage)

@@ -237,7 +237,8 @@ class CageDeformer(Deformer):
         return self._apply(self._last[1], frame)
 
     def write_artifacts(self, out_dir: Path) -> list[Path]:
-        """Write the cages used: ``cage_rest.ply`` and ``cage_deformed.ply`` (``cage_deformed_0000.ply``… for sequences)."""
+        """Write the cages used: ``cage_rest.ply`` and ``cage_deformed.ply`` (``cage_deformed_0000.ply``… for
+        sequences)."""
         out_dir = Path(out_dir)
         n = len(self.deformed_cages)
         names = ["cage_deformed.ply"] if n == 1 else [f"cage_deformed_{i:04d}.ply" for i in range(n)]

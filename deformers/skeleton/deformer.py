@@ -284,7 +284,8 @@ class SkeletonDeformer(Deformer):
         expected = (rest.n_vertices, len(skeleton.names))
         if weights.shape != expected:
             raise NerfEditError(
-                f"{path}: weights shape {weights.shape}, expected {expected} (mesh vertices × joints of {skeleton.source})"
+                f"{path}: weights shape {weights.shape}, expected {expected} "
+                f"(mesh vertices × joints of {skeleton.source})"
             )
         if not np.issubdtype(weights.dtype, np.number) or not np.isfinite(weights).all():
             raise NerfEditError(f"{path}: weights must be finite numbers")

@@ -1,5 +1,5 @@
-"""Compiled (numba) CPU kernel of :meth:`~nerfedit_plugin.bending.deformation_field.DeformationField.bend`: per point, in
-one parallel pass, the near-grid test, the location in the deformed proxy T' and the mapping to canonical space, or
+"""Compiled (numba) CPU kernel of :meth:`~nerfedit_plugin.bending.deformation_field.DeformationField.bend`: per point,
+in one parallel pass, the near-grid test, the location in the deformed proxy T' and the mapping to canonical space, or
 the membership test in the rest proxy T (vacated space). The same rules, float expressions and grids as the torch
 path (:meth:`DeformationField._bend_torch`), so the answers are identical; this one touches each point once.
 

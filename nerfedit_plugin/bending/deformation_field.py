@@ -83,8 +83,8 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     scale + 1`` lie in ``[1, C+1)`` over the union of the locators' boxes (:meth:`TetLocator.boxes`: set sub-cells
     of their occupancy masks); the border layer (cells 0 and C+1) takes every point outside it. Subtracting the
     origin first keeps the rounding error of ``u`` below ``|u| 2⁻²³`` cells (~10⁻⁵, far inside the 10⁻³-cell
-    padding) wherever the grid lies; ``x scale + offset`` cancels, with an error of ``|x| scale 2⁻²⁴`` cells. Bit 1 of a cell: a box
-    of T' (``deformed``), padded by 10⁻³ cell, touches it and a tet of T' may reach it
+    padding) wherever the grid lies; ``x scale + offset`` cancels, with an error of ``|x| scale 2⁻²⁴`` cells. Bit 1 of
+    a cell: a box of T' (``deformed``), padded by 10⁻³ cell, touches it and a tet of T' may reach it
     (:meth:`TetLocator.reach_cells`); bit 2: the same for T; bit 4: every point of the cell is inside T
     (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T)."""
     boxes = [locator.boxes() for locator in (deformed, rest)]

@@ -318,8 +318,8 @@ class TetLocator:
         inflated box, grown by 10⁻³ of a cell, in which every ``b_i`` reaches ``−2 tol`` (the cell test of the grid
         build: the max of ``b_i`` over a cell is ``b_i(centre) + Σ_k |∂b_i/∂x_k| half_k``); cells of the border
         layer whenever the box meets them, since they also take the points clamped into them. Compiled
-        (:func:`~nerfedit_plugin.bending._locate_kernel.mark_reach`) on the CPU for any device: one pass over the cells of
-        the tet boxes."""
+        (:func:`~nerfedit_plugin.bending._locate_kernel.mark_reach`) on the CPU for any device: one pass over the cells
+        of the tet boxes."""
         from nerfedit_plugin.bending._locate_kernel import mark_reach
 
         table = self._table

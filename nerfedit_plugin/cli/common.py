@@ -50,9 +50,9 @@ LOAD_CONFIG = (
     Annotated[
         Path | None,
         tyro.conf.arg(
-            help="Re-run a recorded command: the config.yml of its output folder (or the folder) gives every option; flags "
-            "given on the command line override it. Relative paths in the file are resolved against the current folder "
-            "(nerfedit records them absolute)."
+            help="Re-run a recorded command: the config.yml of its output folder (or the folder) gives every option; "
+            "flags given on the command line override it. Relative paths in the file are resolved against the current "
+            "folder (nerfedit records them absolute)."
         ),
     ],
     dataclasses.field(default=None),

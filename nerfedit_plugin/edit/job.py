@@ -45,15 +45,18 @@ def run_edit(
     out: str | os.PathLike,
     *,
     lift: LiftMethod = "tet-arap",
-    lift_config: LiftConfig = LiftConfig(),
-    proxy_config: ProxyConfig = ProxyConfig(),
+    lift_config: LiftConfig | None = None,
+    proxy_config: ProxyConfig | None = None,
     camera_distance: float | None = None,
     cache_dir: str | os.PathLike | None = None,
     overwrite: bool = False,
     record: dict | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> EditResult:
-    """Run one edit end to end; ``record`` is the full config written to ``config.yml``."""
+    """Run one edit end to end; ``record`` is the full config written to ``config.yml``. ``lift_config`` and
+    ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``."""
+    lift_config = LiftConfig() if lift_config is None else lift_config
+    proxy_config = ProxyConfig() if proxy_config is None else proxy_config
     clock = Stopwatch(on_stage)
     with clock.stage("load"):
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)

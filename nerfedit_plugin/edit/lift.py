@@ -88,11 +88,12 @@ class Lift:
         proxy: TetProxy,
         rest: SurfaceMesh,
         method: LiftMethod = "tet-arap",
-        config: LiftConfig = LiftConfig(),
+        config: LiftConfig | None = None,
         *,
         deformer: Deformer | None = None,
         edit: EditSpec | None = None,
     ) -> None:
+        config = LiftConfig() if config is None else config
         self.proxy, self.rest, self.method, self.config = proxy, rest, method, config
         self.deformer = deformer
         self.embedding = proxy.embedding_matrix()

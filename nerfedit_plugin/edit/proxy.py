@@ -259,12 +259,11 @@ def embed_points(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> 
     return tet.cpu().numpy().astype(np.int64), bary.cpu().numpy().astype(np.float64)
 
 
-def build_proxy(
-    mesh: SurfaceMesh, config: ProxyConfig = ProxyConfig(), camera_distance: float | None = None
-) -> TetProxy:
+def build_proxy(mesh: SurfaceMesh, config: ProxyConfig | None = None, camera_distance: float | None = None) -> TetProxy:
     """Build the tet proxy of ``mesh`` (see the module docstring); raises :class:`NerfEditError` on bad input
     or when ``config.max_attempts`` growing offsets all leave a surface vertex outside the tets or closer than
-    ``config.min_margin`` x offset to their boundary."""
+    ``config.min_margin`` x offset to their boundary. ``config`` defaults to ``ProxyConfig()``."""
+    config = ProxyConfig() if config is None else config
     config.validate()
     _check_mesh(mesh)
     offset = resolve_offset(mesh, config, camera_distance)

@@ -162,10 +162,10 @@ class NeusField(GridField):
             self.occupancy.update(-self.cell_min_distance(), -band, self.config.occupancy_dilation)
 
     def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
-        """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides ``config.train``):
-        colour loss + ``eikonal_weight`` × eikonal loss, cosine annealing over ``anneal_steps``, the occupancy band
-        carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and the grid
-        refined at ``upsample_steps``."""
+        """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides
+        ``config.train``): colour loss + ``eikonal_weight`` × eikonal loss, cosine annealing over ``anneal_steps``, the
+        occupancy band carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and
+        the grid refined at ``upsample_steps``."""
         config = self.config
         generator = torch.Generator().manual_seed((trainer or config.train).seed)
 

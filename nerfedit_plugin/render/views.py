@@ -23,7 +23,8 @@ from nerfedit_plugin.render.renderer import RenderConfig, render_image
 
 
 def default_render_config(field: Field, background=(1.0, 1.0, 1.0)) -> RenderConfig:
-    """Render with the field's :attr:`~nerfedit_plugin.fields.base.Field.render_samples`, else the renderer's default."""
+    """Render with the field's :attr:`~nerfedit_plugin.fields.base.Field.render_samples`, else the renderer's
+    default."""
     samples = field.render_samples or RenderConfig.n_samples
     return RenderConfig(n_samples=int(samples), background=tuple(background))
 

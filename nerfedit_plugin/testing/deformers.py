@@ -200,7 +200,8 @@ def rigid_handles(edit: dict, rest: SurfaceMesh) -> dict:
 
 
 def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares rigid motion ``target ≈ source @ R.T + t`` (Kabsch/Procrustes); returns ``(R, t, max residual)``."""
+    """Least-squares rigid motion ``target ≈ source @ R.T + t`` (Kabsch/Procrustes); returns ``(R, t, max
+    residual)``."""
     cs, ct = source.mean(0), target.mean(0)
     u, _, vt = np.linalg.svd((source - cs).T @ (target - ct))
     d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
@@ -345,7 +346,8 @@ def check_rigid(
     rigid_edit: dict | None = None,
     rigid_tol: float = 1e-4,
 ) -> None:
-    """The rigid variant moves the whole mesh by one rigid motion per frame (Procrustes residual ≤ ``rigid_tol`` × bbox)."""
+    """The rigid variant moves the whole mesh by one rigid motion per frame (Procrustes residual ≤ ``rigid_tol`` ×
+    bbox)."""
     rest, edit = _resolve(config, rest, edit)
     variant = _variant(config, rest, edit, rigid_edit, "rigid_edit", rigid_handles)
     out = _frames(config, rest, variant, base_dir, "rigid edit")

@@ -1,4 +1,5 @@
-"""Conformance kit for field plugins (group ``nerfedit.fields``), the counterpart of :mod:`nerfedit_plugin.testing.deformers`.
+"""Conformance kit for field plugins (group ``nerfedit.fields``), the counterpart of
+:mod:`nerfedit_plugin.testing.deformers`.
 
 A field author calls it from their own pytest module, one test case per property::
 
@@ -15,10 +16,11 @@ first use by :func:`build_field`.
 Checks (each a public function taking the built field or its config):
 ``config`` (dataclass with a docstring per field, lossless YAML round trip, ``_target`` a Field subclass with a
 valid ``kind``/``data``), ``query`` (shapes, dtypes, device, finite values, colours in [0,1], densities ≥ 0,
-deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None), ``checkpoint`` (save → load through the registry gives the same
-queries; another backend's name is refused), ``identity`` (rendering through an identity DeformationField equals
-the unedited render — the renderer's contract for every backend) and ``extract`` (a SurfaceMesh inside the scene
-box, or a ValueError when the level is outside the field's range).
+deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None),
+``checkpoint`` (save → load through the registry gives the same queries; another backend's name is refused),
+``identity`` (rendering through an identity DeformationField equals the unedited render — the renderer's contract
+for every backend) and ``extract`` (a SurfaceMesh inside the scene box, or a ValueError when the level is outside
+the field's range).
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
 def coloured_mesh() -> SurfaceMesh:
-    """The kit's mesh for mesh-built fields: :func:`nerfedit_plugin.testing.deformers.default_mesh` scaled into :data:`BOX`,
-    coloured by position."""
+    """The kit's mesh for mesh-built fields: :func:`nerfedit_plugin.testing.deformers.default_mesh` scaled into
+    :data:`BOX`, coloured by position."""
     mesh = default_mesh()
     v = mesh.vertices - mesh.vertices.mean(0)
     v = 0.8 * v / np.abs(v).max()

@@ -97,7 +97,10 @@ def lpips(pred: np.ndarray, gt: np.ndarray) -> float | None:
     if weights is None:
         return None
     convs, lins = weights
-    to_tensor = lambda im: torch.from_numpy(np.array(im, dtype=np.float32)).permute(2, 0, 1)[None]
+
+    def to_tensor(im):
+        return torch.from_numpy(np.array(im, dtype=np.float32)).permute(2, 0, 1)[None]
+
     f0, f1 = _features(to_tensor(pred), convs), _features(to_tensor(gt), convs)
     return float(sum(((a - b).pow(2) * w.view(1, -1, 1, 1)).sum(1).mean() for a, b, w in zip(f0, f1, lins)))
 

@@ -1,8 +1,8 @@
 """The training loop shared by every field backend: random ray batches, Adam, a time/step budget, rich progress.
 
 Each step draws ``batch_rays`` pixels uniformly from all training images, renders them with the shared renderer
-(:func:`nerfedit_plugin.render.renderer.render_rays`, stratified samples) and minimises the mean squared colour error plus
-an optional backend regulariser. Every learning rate decays exponentially with training progress
+(:func:`nerfedit_plugin.render.renderer.render_rays`, stratified samples) and minimises the mean squared colour error
+plus an optional backend regulariser. Every learning rate decays exponentially with training progress
 ``p = max(step / max_steps, seconds / max_seconds)``: ``lr(p) = lr₀ · lr_final_factor^p``. Evaluation (PSNR over
 whole held-out images) runs every ``eval_every_seconds`` of training time and is excluded from the clock, so the
 log's ``(seconds, psnr)`` pairs are a PSNR-vs-training-time curve. The clock is wall time, or on a busy machine the

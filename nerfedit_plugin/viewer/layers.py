@@ -2,9 +2,9 @@
 
 An edit folder (``nerfedit edit --out EDIT_DIR``) supplies the deformed mesh, ``deformation.npz`` (rest and
 deformed proxy) and the spec's handles; its deformer adds what it wrote (``Deformer.overlays``, e.g. cages).
-Deformed geometry is shifted along +x by ``1.2 ×`` the rest bounding box width so rest and edit sit side by side. Windows need a display
-(``draw_geometries``); :func:`screenshot` renders offscreen with the legacy ``Visualizer(visible=False)`` (EGL when
-no display is present) and writes a PNG.
+Deformed geometry is shifted along +x by ``1.2 ×`` the rest bounding box width so rest and edit sit side by side.
+Windows need a display (``draw_geometries``); :func:`screenshot` renders offscreen with the legacy
+``Visualizer(visible=False)`` (EGL when no display is present) and writes a PNG.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ def test_top_turns_by_degrees_bottom_stays():
     deformer.bind(rest, parse_edit_spec(EDIT, deformer.spec_keys))
     out = deformer.deform()[-1]
     z = rest.vertices[:, 2]
-    bottom, top = z == z.min(), z == z.max()
+    bottom, _top = z == z.min(), z == z.max()
     assert np.allclose(out[bottom], rest.vertices[bottom])
     probe = np.array([[1.0, 0.0, z.max()]])  # a point level with the top turns a quarter about z
     assert np.allclose(deformer.deform_points(probe, 1), [[0.0, 1.0, z.max()]])
