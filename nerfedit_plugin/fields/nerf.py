@@ -27,7 +27,7 @@ from nerfedit_plugin.training.trainer import TrainerConfig, train
 
 @dataclasses.dataclass
 class NerfConfig(GridFieldConfig):
-    """Dense-grid NeRF: a density field with a view-dependent colour, trained on posed images.
+    """Dense-grid NeRF: a density field and a colour grid (view-dependent decoder optional), trained on posed images.
 
     The defaults are the CPU preset for the 100×100 built-in scene (target: test PSNR ≥ 30 dB
     within 5 min on 2 cores; ``bench/bench_train.py --clock cpu`` measured 30.5 dB at 90 s and 34.9 dB after 300 s,
@@ -53,7 +53,7 @@ class NerfConfig(GridFieldConfig):
 
 
 class NerfField(GridField):
-    """Density field on a dense grid with a tiny view-dependent colour MLP (see the module docstring)."""
+    """Density and colour features on a dense grid; colour by sigmoid, or with decoder="mlp" a view-dependent MLP."""
 
     kind = "density"
 
