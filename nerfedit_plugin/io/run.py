@@ -96,7 +96,8 @@ def open_run(path: str | os.PathLike) -> Run:
 
 
 def _builds_from_mesh(backend: str) -> bool:
-    return getattr(discover(FIELDS).config_class(FIELDS, backend)()._target, "data", None) == "mesh"
+    """Whether the backend's field is built from a mesh (``Field.data == "mesh"``)."""
+    return discover(FIELDS).config_class(FIELDS, backend)()._target.data == "mesh"
 
 
 def _is_mesh_file(data: Path) -> bool:

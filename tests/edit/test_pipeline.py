@@ -3,6 +3,7 @@ generate → train --field mesh → extract → edit --run → render --deformat
 rendered from the deformed mesh; plus run-folder errors."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -67,137 +68,39 @@ def test_mesh_run_extracts_its_mesh_unchanged(scene, mesh_run):
     assert main(["extract", "--run", str(mesh_run)]) == 0  # a mesh field's run has its mesh.ply: nothing to do
 
 
+def render(run, cameras, out, *options) -> None:
+    """``nerfedit render`` of ``run`` from ``cameras`` into ``out`` (extra CLI ``options``); it must succeed."""
+    assert main(["render", "--run", str(run), "--cameras", str(cameras), "--out", str(out), *map(str, options)]) == 0
+
+
+def score(pred, gt) -> dict:
+    """``nerfedit eval`` of the PNGs in ``pred`` against ``gt``: the mean metrics from its ``--json-out``."""
+    json_out = Path(str(pred).rstrip("/") + ".json")
+    assert main(["eval", "--pred", str(pred), "--gt", str(gt), "--json-out", str(json_out)]) == 0
+    return json.loads(json_out.read_text())["mean"]
+
+
 def test_edited_render_matches_ground_truth_of_the_deformed_mesh(scene, mesh_run, monkeypatch):
     monkeypatch.setenv("NERFEDIT_CACHE", str(scene / "cache"))
     test_cameras = scene / "data" / "transforms_test.json"
-    assert (
-        main(
-            [
-                "edit",
-                "--run",
-                str(mesh_run),
-                "--field",
-                "mesh",
-                "--edit",
-                str(scene / "edit.json"),
-                "--out",
-                str(scene / "edit"),
-                "--render-cameras",
-                str(test_cameras),
-            ]
-        )
-        == 0
-    )
+    edit = ["--run", str(mesh_run), "--field", "mesh", "--edit", str(scene / "edit.json"), "--out", str(scene / "edit")]
+    assert main(["edit", *edit, "--render-cameras", str(test_cameras)]) == 0
     deformed = SurfaceMesh.load(scene / "edit" / "deformed_mesh.ply")
     render_ground_truth(scene / "data" / "mesh.ply", deformed.vertices, test_cameras, scene / "gt")
-    assert (
-        main(
-            [
-                "render",
-                "--run",
-                str(mesh_run),
-                "--deformation",
-                str(scene / "edit" / "deformation.npz"),
-                "--cameras",
-                str(test_cameras),
-                "--out",
-                str(scene / "after"),
-                "--supersample",
-                "2",
-            ]
-        )
-        == 0
-    )
-    assert (
-        main(
-            ["eval", "--pred", str(scene / "after"), "--gt", str(scene / "gt"), "--json-out", str(scene / "after.json")]
-        )
-        == 0
-    )
-    edited = json.loads((scene / "after.json").read_text())["mean"]
+    deformation = scene / "edit" / "deformation.npz"
+    render(mesh_run, test_cameras, scene / "after", "--deformation", deformation, "--supersample", 2)
+    edited = score(scene / "after", scene / "gt")
     assert edited["psnr"] > 33.0 and edited["ssim"] > 0.98, edited
     # `edit --render-cameras` rendered the same edit (one ray per pixel: aliased, so a looser bound)
-    assert (
-        main(
-            [
-                "eval",
-                "--pred",
-                str(scene / "edit" / "renders"),
-                "--gt",
-                str(scene / "gt"),
-                "--json-out",
-                str(scene / "edit.json"),
-            ]
-        )
-        == 0
-    )
-    assert json.loads((scene / "edit.json").read_text())["mean"]["psnr"] > 25.0
+    assert score(scene / "edit" / "renders", scene / "gt")["psnr"] > 25.0
     # the unedited field is not the edited one: its renders miss the ground truth of the edit
-    assert (
-        main(
-            [
-                "render",
-                "--run",
-                str(mesh_run),
-                "--cameras",
-                str(test_cameras),
-                "--out",
-                str(scene / "before"),
-                "--supersample",
-                "2",
-            ]
-        )
-        == 0
-    )
-    assert (
-        main(
-            [
-                "eval",
-                "--pred",
-                str(scene / "before"),
-                "--gt",
-                str(scene / "gt"),
-                "--json-out",
-                str(scene / "before.json"),
-            ]
-        )
-        == 0
-    )
-    assert json.loads((scene / "before.json").read_text())["mean"]["psnr"] < edited["psnr"] - 3.0
+    render(mesh_run, test_cameras, scene / "before", "--supersample", 2)
+    assert score(scene / "before", scene / "gt")["psnr"] < edited["psnr"] - 3.0
 
 
 def test_unedited_mesh_field_render_reproduces_the_dataset(scene, mesh_run, tmp_path):
-    assert (
-        main(
-            [
-                "render",
-                "--run",
-                str(mesh_run),
-                "--cameras",
-                str(scene / "data" / "transforms_test.json"),
-                "--out",
-                str(tmp_path / "r"),
-                "--supersample",
-                "2",
-            ]
-        )
-        == 0
-    )
-    assert (
-        main(
-            [
-                "eval",
-                "--pred",
-                str(tmp_path / "r"),
-                "--gt",
-                str(scene / "data" / "test"),
-                "--json-out",
-                str(tmp_path / "m.json"),
-            ]
-        )
-        == 0
-    )
-    assert json.loads((tmp_path / "m.json").read_text())["mean"]["psnr"] > 35.0
+    render(mesh_run, scene / "data" / "transforms_test.json", tmp_path / "r", "--supersample", 2)
+    assert score(tmp_path / "r", scene / "data" / "test")["psnr"] > 35.0
 
 
 def test_run_errors_are_one_line(scene, mesh_run, tmp_path, capsys):
@@ -260,58 +163,12 @@ def test_animated_edit_renders_every_frame(scene, mesh_run, tmp_path, monkeypatc
     assert (
         main(["edit", "--run", str(mesh_run), "--edit", str(tmp_path / "anim.json"), "--out", str(tmp_path / "e")]) == 0
     )
-    cameras = scene / "data" / "transforms_test.json"
-    assert (
-        main(
-            [
-                "render",
-                "--run",
-                str(mesh_run),
-                "--deformation",
-                str(tmp_path / "e" / "deformation.npz"),
-                "--cameras",
-                str(cameras),
-                "--out",
-                str(tmp_path / "r"),
-            ]
-        )
-        == 0
-    )
+    cameras, deformation = scene / "data" / "transforms_test.json", tmp_path / "e" / "deformation.npz"
+    render(mesh_run, cameras, tmp_path / "r", "--deformation", deformation)
     assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["config.yml", "frame_0000", "frame_0001"]
-    assert (
-        main(
-            [
-                "render",
-                "--run",
-                str(mesh_run),
-                "--deformation",
-                str(tmp_path / "e" / "deformation.npz"),
-                "--cameras",
-                str(cameras),
-                "--out",
-                str(tmp_path / "one"),
-                "--frame",
-                "1",
-            ]
-        )
-        == 0
-    )
+    render(mesh_run, cameras, tmp_path / "one", "--deformation", deformation, "--frame", 1)
     for name in ("r_0.png", "r_1.png", "r_2.png"):  # --frame 1 renders what the full animation's frame 1 holds
         assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "r" / "frame_0001" / name).read_bytes()
     # frame 0 of "frames": 2 is the rest pose: it renders the unedited field
-    assert main(["render", "--run", str(mesh_run), "--cameras", str(cameras), "--out", str(tmp_path / "rest")]) == 0
-    assert (
-        main(
-            [
-                "eval",
-                "--pred",
-                str(tmp_path / "r" / "frame_0000"),
-                "--gt",
-                str(tmp_path / "rest"),
-                "--json-out",
-                str(tmp_path / "m.json"),
-            ]
-        )
-        == 0
-    )
-    assert json.loads((tmp_path / "m.json").read_text())["mean"]["psnr"] > 40.0
+    render(mesh_run, cameras, tmp_path / "rest")
+    assert score(tmp_path / "r" / "frame_0000", tmp_path / "rest")["psnr"] > 40.0
