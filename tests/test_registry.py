@@ -84,3 +84,42 @@ def test_registered_plugin_works(fake_plugins):
     rest = SurfaceMesh(np.eye(3), np.array([[0, 1, 2]]))
     deformer.bind(rest, parse_edit_spec({}, allowed_keys=()))
     assert np.allclose(deformer.deform()[0], np.eye(3) + 1)
+
+
+def test_plugins_command_lists_each_builtin_with_its_description(capsys, monkeypatch):
+    """``nerfedit plugins``: one row per built-in (group, name, the first line of its config class's docstring, entry
+    point, distribution), every built-in and nothing skipped."""
+    from deformers.arap import ArapConfig
+    from deformers.cage import CageConfig
+    from deformers.mesh import MeshConfig
+    from deformers.skeleton import SkeletonConfig
+    from nerfedit_plugin.cli import common
+    from nerfedit_plugin.cli.app import main
+    from nerfedit_plugin.fields.mesh_field import MeshFieldConfig
+    from nerfedit_plugin.fields.nerf import NerfConfig
+    from nerfedit_plugin.fields.neus import NeusConfig
+
+    monkeypatch.setattr(common.console, "width", 400)  # one line per row
+    assert main(["plugins"]) == 0
+    out = capsys.readouterr().out
+    rows = {
+        tuple(cell.strip() for cell in line.strip().strip("│").split("│"))
+        for line in out.splitlines()
+        if line.startswith("│")
+    }
+    expected = {
+        ("nerfedit.deformers", "arap", "deformers.arap:ArapConfig", ArapConfig),
+        ("nerfedit.deformers", "cage", "deformers.cage:CageConfig", CageConfig),
+        ("nerfedit.deformers", "mesh", "deformers.mesh:MeshConfig", MeshConfig),
+        ("nerfedit.deformers", "skeleton", "deformers.skeleton:SkeletonConfig", SkeletonConfig),
+        ("nerfedit.fields", "mesh", "nerfedit_plugin.fields.mesh_field:MeshFieldConfig", MeshFieldConfig),
+        ("nerfedit.fields", "nerf", "nerfedit_plugin.fields.nerf:NerfConfig", NerfConfig),
+        ("nerfedit.fields", "neus", "nerfedit_plugin.fields.neus:NeusConfig", NeusConfig),
+    }
+    descriptions = {}
+    for group, name, target, config in expected:
+        doc = config.__doc__.strip().splitlines()[0]
+        assert len(doc) > 20 and not doc.startswith(config.__name__), (name, doc)  # a written docstring
+        descriptions[group, name] = (group, name, doc, target, "nerfedit")
+    assert rows == set(descriptions.values())
+    assert "skipped" not in out

@@ -2,17 +2,28 @@
 
 Each module (``cli/train.py``, ``cli/edit.py``, …) holds its args dataclass, its function and its
 :class:`~nerfedit_plugin.cli.common.Command`; :mod:`nerfedit_plugin.cli.common` parses (plugin choice, then tyro,
-``--load-config``) and holds the one console. ``nerfedit SUBCOMMAND --help`` lists the options of each subcommand.
-User errors print one line and exit 2; ``--verbose`` (read from the parsed args) shows the traceback.
+``--load-config``) and holds the one console. ``nerfedit --help`` lists the subcommands with one line each (the first
+sentence of their args dataclass's docstring, read from the source: no subcommand is imported for it);
+``nerfedit`` alone prints the same to stderr and exits 2. ``nerfedit SUBCOMMAND --help`` lists the options of each
+subcommand. User errors print one line and exit 2; ``--verbose`` (read from the parsed args) shows the traceback.
+An interrupt (SIGINT, SIGTERM, SIGHUP) prints one line saying what was kept and exits 128 + the signal's number
+(130, 143, 129); staging folders are removed on the way out (see :mod:`nerfedit_plugin.io.atomic`).
 """
 
 from __future__ import annotations
 
+import ast
+import contextlib
 import importlib
+import signal
 import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-from nerfedit_plugin.cli.common import Command, console, parse, print_error
-from nerfedit_plugin.errors import NerfEditError
+if TYPE_CHECKING:
+    from nerfedit_plugin.cli.common import Command
 
 COMMANDS: dict[str, str] = {
     "train": "train",
@@ -27,30 +38,138 @@ COMMANDS: dict[str, str] = {
 }
 """subcommand -> its module in ``nerfedit_plugin.cli`` (imported when the subcommand runs: startup stays fast)."""
 
+USAGE = "usage: nerfedit {" + ",".join(COMMANDS) + "} [--help]"
+SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+"""The signals :func:`main` turns into :class:`Interrupted` (each unless its handler is SIG_IGN, e.g. under nohup)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Raised by the signal handlers of :func:`main`: a ``KeyboardInterrupt``, so every cleanup runs."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
 
 def command(name: str) -> Command:
     """The :class:`Command` of subcommand ``name``."""
     return importlib.import_module(f"nerfedit_plugin.cli.{COMMANDS[name]}").COMMAND
 
 
+def description(name: str) -> str:
+    """One line on what subcommand ``name`` does: the first sentence of its args dataclass's docstring (the part
+    before a colon when that sentence is long), read from the source with :mod:`ast` (no import: ``--help`` stays
+    fast)."""
+    package = Path(__file__).resolve().parents[1]
+    tree = ast.parse((package / "cli" / f"{COMMANDS[name]}.py").read_text())
+    args = next(
+        node.value.args[1].id
+        for node in tree.body
+        if isinstance(node, ast.Assign)
+        and any(isinstance(target, ast.Name) and target.id == "COMMAND" for target in node.targets)
+    )
+    for _ in range(3):  # the class, or the module it is imported from
+        found = next((node for node in tree.body if isinstance(node, ast.ClassDef) and node.name == args), None)
+        if found is not None:
+            return _first_sentence(ast.get_docstring(found) or "")
+        module = next(
+            node.module
+            for node in tree.body
+            if isinstance(node, ast.ImportFrom) and any(alias.name == args for alias in node.names)
+        )
+        tree = ast.parse((package.parent / (module.replace(".", "/") + ".py")).read_text())
+    return ""
+
+
+def _first_sentence(doc: str) -> str:
+    text = " ".join(doc.split("\n\n")[0].split())
+    sentence = text.split(". ")[0].rstrip(".")
+    if len(sentence) > 120 and ": " in sentence:  # one line in a wide terminal
+        sentence = sentence.split(": ")[0]
+    return sentence + "."
+
+
+def overview() -> str:
+    """The usage line and every subcommand with its description."""
+    width = max(map(len, COMMANDS))
+    lines = [USAGE, "", "commands:"]
+    lines += [f"  {name:<{width}}  {description(name)}" for name in COMMANDS]
+    lines += ["", "`nerfedit COMMAND --help` lists the options of a command."]
+    return "\n".join(lines)
+
+
+@contextlib.contextmanager
+def interrupts_raise() -> Iterator[None]:
+    """Within the block, SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` (in the main thread; signals that are
+    ignored stay ignored). The previous handlers come back afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise Interrupted(signum)
+
+    previous = {}
+    for signum in SIGNALS:
+        if signal.getsignal(signum) not in (signal.SIG_IGN, None):
+            previous[signum] = signal.signal(signum, handler)
+    try:
+        yield
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
+
+
+def _interrupted(name: str, exc: KeyboardInterrupt, since: int) -> int:
+    """Print the one line of an interrupted command; its exit code (128 + the signal)."""
+    from nerfedit_plugin.io import atomic
+
+    signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
+    kept = list(dict.fromkeys(path for path in atomic.committed[since:] if path.exists()))
+    what = "nothing written" if not kept else "kept (complete): " + ", ".join(map(str, kept[:3]))
+    what += f" and {len(kept) - 3} more" if len(kept) > 3 else ""
+    with contextlib.suppress(OSError):  # e.g. SIGHUP: the terminal is gone
+        sys.stderr.write(f"nerfedit {name}: interrupted ({signal.Signals(signum).name}); {what}\n")
+        sys.stderr.flush()
+    return 128 + int(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    usage = "usage: nerfedit {" + ",".join(COMMANDS) + "} [--help]"
-    if not argv or argv[0] in ("-h", "--help"):
-        console.print(usage, highlight=False)
+    if not argv:
+        print(overview(), file=sys.stderr)
+        return 2
+    if argv[0] in ("-h", "--help"):
+        print(overview())
         return 0
     if argv[0] not in COMMANDS:
-        print_error(f"unknown command {argv[0]!r} ({usage})")
+        from nerfedit_plugin.cli.common import print_error
+
+        print_error(f"unknown command {argv[0]!r} ({USAGE}; `nerfedit --help` says what each does)")
         return 2
-    spec, args = command(argv[0]), None
-    try:
-        args = parse(spec, argv[1:])
-        spec.run(args)
-    except NerfEditError as exc:
-        if getattr(args, "verbose", False):
-            raise
-        print_error(exc)
-        return 2
+    with interrupts_raise():
+        from nerfedit_plugin.io import atomic
+
+        since, args = len(atomic.committed), None
+        try:
+            from nerfedit_plugin.cli.common import parse, print_error
+            from nerfedit_plugin.errors import NerfEditError
+
+            spec = command(argv[0])
+            try:
+                args = parse(spec, argv[1:])
+                spec.run(args)
+            except NerfEditError as exc:
+                if getattr(args, "verbose", False):
+                    raise
+                print_error(exc)
+                return 2
+        except KeyboardInterrupt as exc:
+            if getattr(args, "verbose", False):
+                import traceback
+
+                traceback.print_exc()
+            return _interrupted(argv[0], exc, since)
     return 0
 
 

@@ -15,20 +15,26 @@ class's docstring.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import importlib
 import inspect
 import os
 import pkgutil
-from collections.abc import Callable, Iterable
+import sys
+import types
+import typing
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
 import tyro
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from nerfedit_plugin.config import from_plain, read_config
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, OptionError
 from nerfedit_plugin.registry import Registry, discover
 
 console = Console()
@@ -172,6 +178,7 @@ def parse(command: Command, argv: list[str]) -> Any:
             _check_target(file, key, loaded[key], config_class)
     args = _extend(base, [*fields, LOAD_CONFIG, VERBOSE] if command.records else [*fields, VERBOSE])
     default = tyro.MISSING_NONPROP
+    groups = option_groups(args)
     if file is not None:
         unknown = sorted(set(loaded) - {f.name for f in dataclasses.fields(args)})
         if unknown:
@@ -180,11 +187,104 @@ def parse(command: Command, argv: list[str]) -> Any:
             )
         try:
             default = from_plain(args, loaded, missing=tyro.MISSING)
+        except OptionError as exc:
+            raise NerfEditError(f"{file}: {groups.get(exc.config_class, '')}{exc.option}: {exc.problem}") from exc
         except (TypeError, ValueError) as exc:
             raise NerfEditError(f"{file}: {exc}") from exc
-    return tyro.cli(
-        args, args=argv, prog=f"nerfedit {command.name}", description=description, default=default, config=TYRO_CONFIG
-    )
+    try:
+        with _one_line_instantiation_errors(groups):
+            return tyro.cli(
+                args,
+                args=argv,
+                prog=f"nerfedit {command.name}",
+                description=description,
+                default=default,
+                config=TYRO_CONFIG,
+            )
+    except OptionError as exc:
+        raise NerfEditError(f"{flag(groups.get(exc.config_class, '') + exc.option)}: {exc.problem}") from exc
+    except (TypeError, ValueError) as exc:  # a config's constructor rejected the values (a safety net)
+        group = _raised_by(exc, groups)
+        if group is None:
+            raise
+        raise NerfEditError(f"{_group_name(group)}: {exc}") from exc
+
+
+def flag(option: str) -> str:
+    """The command-line flag of an option path (tyro's spelling): ``field_options.train.batch_rays`` →
+    ``--field-options.train.batch-rays``."""
+    return "--" + option.replace("_", "-")
+
+
+def option_groups(args: type, prefix: str = "") -> dict[type, str]:
+    """``{config class: option prefix}`` of the dataclass ``args`` and of every nested config dataclass in it:
+    ``{TrainArgs: "", NerfConfig: "field_options.", TrainerConfig: "field_options.train."}`` (the first place a class
+    appears wins)."""
+    found = {args: prefix}
+    for base in args.__mro__[1:]:
+        if dataclasses.is_dataclass(base):
+            found.setdefault(base, prefix)
+    try:
+        hints = typing.get_type_hints(args)
+    except Exception:  # unresolvable annotations (e.g. classes local to a test): the field's own type
+        hints = {}
+    for field in dataclasses.fields(args):
+        kind = hints.get(field.name, field.type)
+        candidates = typing.get_args(kind) if typing.get_origin(kind) in (typing.Union, types.UnionType) else (kind,)
+        for candidate in candidates:
+            if isinstance(candidate, type) and dataclasses.is_dataclass(candidate) and candidate not in found:
+                found.update(
+                    {k: v for k, v in option_groups(candidate, f"{prefix}{field.name}.").items() if k not in found}
+                )
+    return found
+
+
+def _group_name(prefix: str) -> str:
+    """How an error names an option group: ``--field-options`` (the options of the command itself: ``options``)."""
+    return flag(prefix.rstrip(".")) if prefix else "options"
+
+
+def _raised_by(exc: BaseException, groups: dict[type, str]) -> str | None:
+    """The option prefix of the config whose constructor (``__init__``/``__post_init__``, the innermost one) raised
+    ``exc`` or the exception it was raised while handling; None when no config constructor is on the traceback."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        found, tb = None, exc.__traceback__
+        while tb is not None:
+            frame = tb.tb_frame
+            owner = frame.f_locals.get("self") if frame.f_code.co_name in ("__init__", "__post_init__") else None
+            if owner is not None and type(owner) in groups:
+                found = groups[type(owner)]
+            tb = tb.tb_next
+        if found is not None:
+            return found
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+@contextlib.contextmanager
+def _one_line_instantiation_errors(groups: dict[type, str]) -> Iterator[None]:
+    """While tyro parses: a ValueError of a config's constructor, which tyro would report in a box, becomes a
+    :class:`NerfEditError` naming the option group (through tyro's parse-error hook, when this tyro has it)."""
+    try:
+        errors = importlib.import_module("tyro._errors")
+        hook, failure = errors.on_parse_error, errors.InstantiationFailure
+    except (ImportError, AttributeError):
+        yield
+        return
+
+    def handle(event: Any) -> None:
+        if isinstance(event, failure):
+            raised = sys.exc_info()[1]
+            group = _raised_by(raised, groups) if raised is not None else None
+            if group is None and isinstance(getattr(raised, "arg", None), str):  # tyro's InstantiationError
+                group = raised.arg + "."
+            if group is not None:
+                raise NerfEditError(f"{_group_name(group)}: {event.message}")
+
+    with hook(handle):
+        yield
 
 
 def recorded(args: Any) -> Any:
@@ -201,13 +301,13 @@ def recorded(args: Any) -> Any:
 
 
 def print_error(message: Any) -> None:
-    """One red line on stderr."""
-    _to_stderr(f"[red]error:[/] {message}")
+    """One red line on stderr (the message verbatim: ``[nan, 0.0]`` is text, not rich markup)."""
+    _to_stderr(f"[red]error:[/] {escape(str(message))}")
 
 
 def print_warning(message: Any) -> None:
-    """One yellow line on stderr."""
-    _to_stderr(f"[yellow]warning:[/] {message}")
+    """One yellow line on stderr (the message verbatim)."""
+    _to_stderr(f"[yellow]warning:[/] {escape(str(message))}")
 
 
 def _to_stderr(text: str) -> None:

@@ -37,6 +37,9 @@ class EditArgs:
     proxy: ProxyConfig = dataclasses.field(default_factory=ProxyConfig)
     cache_dir: Path | None = None
     """Proxy cache folder (default $NERFEDIT_CACHE or ~/.cache/nerfedit/proxies)."""
+    proxy_from: Path | None = None
+    """Reuse the tet proxy of an earlier edit (its folder or deformation.npz) instead of meshing again, for the same
+    mesh, --proxy options and camera distance. pytetwild is not deterministic: this reproduces an edit bit for bit."""
     camera_distance: float | None = None
     """Mean camera-to-object distance; sets the cage offset (5% of it). Default: from the run's cameras."""
     overwrite: bool = False
@@ -68,6 +71,7 @@ def edit(args: EditArgs) -> None:
             proxy_config=args.proxy,
             camera_distance=distance,
             cache_dir=args.cache_dir,
+            proxy_from=args.proxy_from,
             overwrite=args.overwrite,
             record=recorded(args),
             on_stage=lambda stage: status.update(f"[bold]{stage}[/]"),
@@ -92,7 +96,9 @@ def edit(args: EditArgs) -> None:
     proxy = report["proxy"]
     timings = ", ".join(f"{k} {v:.2f}s" for k, v in report["timings_s"].items())
     console.print(
-        f"proxy {proxy['vertices']} vertices / {proxy['tets']} tets{' (cached)' if proxy['cached'] else ''}; {timings}"
+        f"proxy {proxy['vertices']} vertices / {proxy['tets']} tets"
+        f"{' (cached)' if proxy['cached'] and not proxy['reused_from'] else ''}"
+        f"{' (from ' + proxy['reused_from'] + ')' if proxy['reused_from'] else ''}; {timings}"
     )
     if args.render_cameras is not None:
         out = render_run(run, args.render_cameras, result.out / "deformation.npz", None, result.out / "renders", False)

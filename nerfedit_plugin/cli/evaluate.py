@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from nerfedit_plugin.cli.common import Command, print_table
+from nerfedit_plugin.errors import NerfEditError, check_option
 
 
 @dataclasses.dataclass
@@ -22,12 +23,34 @@ class EvalArgs:
     json_out: Path | None = None
     """Also write the per-image and mean metrics to this JSON file."""
 
+    def __post_init__(self) -> None:
+        ok = all(0 <= c <= 1 for c in self.background)
+        check_option(self, "background", self.background, ok, "3 numbers in [0, 1]")
+
+
+def image_folder(path: Path, option: str) -> Path:
+    """The folder of PNGs ``path`` stands for: itself when it holds PNGs (e.g. a `nerfedit render` folder, whose
+    config.yml is ignored), else a dataset's test images (`nerfedit generate --out`: the cameras `nerfedit render
+    --cameras DATASET` renders). An animated render (frame_NNNN folders) is an error naming a frame folder."""
+    from nerfedit_plugin.data.datasets import read_transforms
+
+    if not path.is_dir() or any(path.glob("*.png")):
+        return path
+    frames = sorted(p for p in path.glob("frame_[0-9]*") if p.is_dir())
+    if frames:
+        raise NerfEditError(f"{option} {path}: an animated render; compare one frame, e.g. {option} {frames[0]}")
+    try:
+        folders = {p.parent for p in read_transforms(path, "test").image_paths}
+    except NerfEditError:
+        return path
+    return folders.pop() if len(folders) == 1 else path
+
 
 def evaluate(args: EvalArgs) -> None:
     from nerfedit_plugin.io.atomic import write_text
     from nerfedit_plugin.training.metrics import evaluate_folders
 
-    result = evaluate_folders(args.pred, args.gt, args.background)
+    result = evaluate_folders(image_folder(args.pred, "--pred"), image_folder(args.gt, "--gt"), args.background)
     rows = list(result["images"].items()) + [("mean", result["mean"])]
     print_table(
         f"nerfedit eval: {args.pred} vs {args.gt}",

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 from nerfedit_plugin.cli.common import Command, console
+from nerfedit_plugin.errors import check_option
 
 
 @dataclasses.dataclass
@@ -22,6 +24,11 @@ class ExtractArgs:
     """Keep only the largest connected part (drops floaters, which no deformer handle would reach)."""
     overwrite: bool = False
     """Replace an existing mesh.ply (a mesh field's own mesh.ply is kept without it: it is the field)."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "resolution", self.resolution, self.resolution >= 2, "an integer >= 2")
+        if self.level is not None:
+            check_option(self, "level", self.level, math.isfinite(self.level), "a finite number")
 
 
 def extract(args: ExtractArgs) -> None:

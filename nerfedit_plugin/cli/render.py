@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from nerfedit_plugin.cli.common import CONFIG, Command, console, recorded
+from nerfedit_plugin.errors import check_option
 
 
 @dataclasses.dataclass
@@ -27,6 +28,11 @@ class RenderArgs:
     """Anti-aliasing: supersample × supersample rays per pixel, averaged."""
     overwrite: bool = False
     """Replace an existing image folder."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "supersample", self.supersample, self.supersample >= 1, "a positive integer")
+        if self.frame is not None:
+            check_option(self, "frame", self.frame, self.frame >= 0, ">= 0")
 
 
 def render_run(

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from nerfedit_plugin.cli.common import CONFIG, Command, console
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 
 
 @dataclasses.dataclass
@@ -28,24 +32,73 @@ class ViewArgs:
     """Screenshot width in pixels."""
     height: int = 540
     """Screenshot height in pixels."""
-    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
-    """World up direction of the view (samples: y; datasets of `nerfedit generate`: z)."""
+    up: tuple[float, float, float] | None = None
+    """World up direction of the view; default: the run's when the mesh is a run's (its dataset's cameras: z for
+    datasets of `nerfedit generate`), else y (the samples' convention)."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "frame", self.frame, self.frame >= 0, ">= 0")
+        check_option(self, "width", self.width, self.width >= 1, "a positive number of pixels")
+        check_option(self, "height", self.height, self.height >= 1, "a positive number of pixels")
+        if self.up is not None:
+            ok = all(math.isfinite(c) for c in self.up) and any(c != 0 for c in self.up)
+            check_option(self, "up", self.up, ok, "a non-zero direction")
+
+
+Y_UP = (0.0, 1.0, 0.0)
+
+
+def edit_source(edit: Path) -> tuple[str | None, Path | None]:
+    """``(mesh, run)`` an edit folder was made from, as its config.yml records them (``nerfedit edit --mesh`` or
+    ``--run``); an error naming the folder when it is not an edit folder."""
+    from nerfedit_plugin.config import read_config
+
+    file = edit / CONFIG
+    if not file.is_file():
+        raise NerfEditError(f"{edit}: not an edit folder (no {CONFIG}; make one with `nerfedit edit`)")
+    record = read_config(file, "the config.yml of `nerfedit edit`")
+    mesh, run = record.get("mesh"), record.get("run")
+    return (mesh if isinstance(mesh, str) else None), (Path(run) if isinstance(run, str) else None)
+
+
+def run_up(run: Any) -> tuple[float, float, float] | None:
+    """The up direction of a run's world: z for a dataset of `nerfedit generate` (its config.yml records the
+    generator's options; its world is z-up by construction), else the consensus of the training cameras
+    (:func:`~nerfedit_plugin.data.datasets.world_up`); a mesh field's mesh shares the world of the dataset it sits in
+    (a generated dataset's mesh.ply), else None (unknown)."""
+    from nerfedit_plugin.data.datasets import read_transforms, transforms_file, world_up
+
+    data = Path(run.data)
+    folder = data.parent if data.is_file() else data
+    generated = folder / CONFIG
+    if generated.is_file():
+        record = yaml.safe_load(generated.read_text()) or {}
+        if isinstance(record, dict) and {"up_axis", "n_train", "resolution"} <= record.keys():
+            return (0.0, 0.0, 1.0)
+    try:
+        transforms = read_transforms(transforms_file(folder if data.suffix != ".json" else data, "train"), "train")
+    except NerfEditError:
+        return None
+    return world_up(transforms.cameras)
 
 
 def view(args: ViewArgs) -> None:
-    import yaml
-
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.io.run import open_run
     from nerfedit_plugin.viewer.layers import edit_geometries, screenshot, show
 
-    mesh = args.mesh
-    if mesh is None and args.edit is not None and (args.edit / CONFIG).is_file():
-        mesh = (yaml.safe_load((args.edit / CONFIG).read_text()) or {}).get("mesh")
-    if mesh is None:
-        raise NerfEditError("view: give --mesh MESH (the edit folder's config names no mesh)")
-    geometries = edit_geometries(SurfaceMesh.load(mesh), args.edit, args.frame, args.show)
+    mesh, run = args.mesh, None
+    if mesh is None and args.edit is not None:
+        mesh, run_path = edit_source(args.edit)
+        if mesh is None and run_path is not None:
+            run = open_run(run_path)
+    if mesh is None and run is None:
+        raise NerfEditError("view: give --mesh MESH (or --edit EDIT_DIR of an edit made with --mesh or --run)")
+    rest = run.mesh() if run is not None else SurfaceMesh.load(mesh)
+    up = args.up or (run_up(run) if run is not None else None) or Y_UP
+    geometries = edit_geometries(rest, args.edit, args.frame, args.show)
     if args.screenshot is not None:
-        console.print(f"screenshot → {screenshot(geometries, args.screenshot, args.width, args.height, args.up)}")
+        console.print(f"screenshot → {screenshot(geometries, args.screenshot, args.width, args.height, up)}")
     else:
         show(geometries)
 

@@ -33,10 +33,12 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     Pillow (behind ``skimage.io``) decodes 16-bit *colour* PNGs at 8-bit precision (16-bit grey is exact)."""
     import skimage.io
 
+    if not Path(path).is_file():
+        raise NerfEditError(f"{path}: image not found")
     try:
         image = np.asarray(skimage.io.imread(path))
     except Exception as exc:  # imageio raises many types for corrupt files
-        raise NerfEditError(f"{path}: cannot read image ({exc})") from exc
+        raise NerfEditError(f"{path}: not a readable image ({_image_problem(exc)})") from exc
     if image.dtype == np.uint8 or image.dtype == np.uint16:
         image = image.astype(np.float32) / np.iinfo(image.dtype).max
     elif image.dtype.kind == "f":
@@ -51,6 +53,15 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     rgb = np.broadcast_to(image[..., :colour_channels], image.shape[:2] + (3,))
     alpha = image[..., colour_channels] if image.shape[2] in (2, 4) else None
     return np.ascontiguousarray(rgb), alpha
+
+
+def _image_problem(exc: Exception) -> str:
+    """What a decoder's exception says, in a few words (imageio's "no backend" advice names packages to install,
+    which would not help with a file that is not an image)."""
+    text = " ".join(str(exc).split())
+    if not text or "backend" in text or "cannot identify image" in text:
+        return "unknown format or corrupt data"
+    return text if len(text) <= 160 else text[:157] + "..."
 
 
 def to_uint8(image: np.ndarray) -> np.ndarray:
@@ -258,6 +269,23 @@ def _intrinsics(file: Path, meta: dict, frame: dict, where: str, w: int, h: int)
         raise NerfEditError(f"{file}: {where}: focal lengths must be positive, got fl_x={fx}, fl_y={fy}")
     cx, cy = _lookup(file, meta, frame, "cx", where), _lookup(file, meta, frame, "cy", where)
     return fx, fy, w / 2.0 if cx is None else cx, h / 2.0 if cy is None else cy
+
+
+def world_up(cameras: Cameras, snap_degrees: float = 25.0) -> tuple[float, float, float] | None:
+    """The world's up direction as the cameras see it: the mean of their up vectors (``c2w[:, :3, 1]``, OpenGL),
+    snapped to the nearest signed axis when within ``snap_degrees`` of it; None when they do not agree on one (the
+    mean is shorter than half a unit vector). Cameras placed with a world-up convention (Blender and `nerfedit
+    generate` datasets: +z) give that axis."""
+    ups = cameras.c2w[:, :3, 1].double().cpu().numpy()
+    mean = ups.mean(0)
+    norm = float(np.linalg.norm(mean))
+    if not norm > 0.5:
+        return None
+    mean /= norm
+    axis = int(np.abs(mean).argmax())
+    if abs(mean[axis]) >= math.cos(math.radians(snap_degrees)):
+        mean = np.eye(3)[axis] * np.sign(mean[axis])
+    return tuple(float(v) for v in mean)
 
 
 def blender_transforms(cameras: Cameras, file_paths: list[str]) -> dict:

@@ -18,8 +18,9 @@ from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.edit.deformer import DeformerConfig
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
-from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy
+from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
 from nerfedit_plugin.edit.spec import load_edit_spec
+from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.timing import Stopwatch
@@ -30,6 +31,32 @@ def default_cache_dir() -> Path:
     if "NERFEDIT_CACHE" in os.environ:
         return Path(os.environ["NERFEDIT_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "nerfedit" / "proxies"
+
+
+def reuse_proxy(
+    source: str | os.PathLike, mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None
+) -> TetProxy:
+    """The tet proxy of an earlier edit (its folder or its ``deformation.npz``), for the same rest mesh and proxy
+    settings: the rest tets of ``deformation.npz`` with ``mesh`` embedded again. pytetwild is not deterministic, so
+    this (or a warm cache) is how a re-run gives the same ``deformation.npz`` bit for bit. The folder's
+    ``report.json`` must record the proxy key (:func:`proxy_cache_key`) of ``mesh``, ``config`` and
+    ``camera_distance``; otherwise :class:`NerfEditError`."""
+    source = Path(source)
+    path = source / "deformation.npz" if source.is_dir() else source
+    report_path = path.parent / "report.json"
+    try:
+        recorded = json.loads(report_path.read_text())["proxy"]["key"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise NerfEditError(
+            f"--proxy-from {source}: {report_path} records no proxy key (not an edit folder of this nerfedit)"
+        ) from None
+    if recorded != proxy_cache_key(mesh, config, camera_distance):
+        raise NerfEditError(
+            f"--proxy-from {source}: its proxy was built from another mesh or other proxy settings "
+            "(mesh, --proxy.*, camera distance must be those of that edit)"
+        )
+    field = DeformationField.load(path)
+    return proxy_from_tets(field.rest_vertices, field.tets, mesh, f"--proxy-from {path}")
 
 
 @dataclasses.dataclass
@@ -49,12 +76,14 @@ def run_edit(
     proxy_config: ProxyConfig | None = None,
     camera_distance: float | None = None,
     cache_dir: str | os.PathLike | None = None,
+    proxy_from: str | os.PathLike | None = None,
     overwrite: bool = False,
     record: dict | None = None,
     on_stage: Callable[[str], None] | None = None,
 ) -> EditResult:
     """Run one edit end to end; ``record`` is the full config written to ``config.yml``. ``lift_config`` and
-    ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``."""
+    ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``. ``proxy_from`` (an earlier edit's folder or
+    ``deformation.npz``) reuses its proxy instead of building one (:func:`reuse_proxy`)."""
     lift_config = LiftConfig() if lift_config is None else lift_config
     proxy_config = ProxyConfig() if proxy_config is None else proxy_config
     clock = Stopwatch(on_stage)
@@ -69,7 +98,11 @@ def run_edit(
         with clock.stage("deform"):
             frames = model.deform()
         with clock.stage("proxy"):
-            proxy, cached = cached_proxy(rest, proxy_config, cache_dir or default_cache_dir(), camera_distance)
+            key = proxy_cache_key(rest, proxy_config, camera_distance)
+            if proxy_from is not None:
+                proxy, cached = reuse_proxy(proxy_from, rest, proxy_config, camera_distance), True
+            else:
+                proxy, cached = cached_proxy(rest, proxy_config, cache_dir or default_cache_dir(), camera_distance)
         with clock.stage("lift"):
             lifted, reports = Lift(proxy, rest, lift, lift_config, deformer=model, edit=spec)(frames)
         with clock.stage("write"):
@@ -89,7 +122,13 @@ def run_edit(
             "lift": lift,
             "frames": len(frames),
             "surface": {"vertices": rest.n_vertices, "faces": len(rest.faces)},
-            "proxy": {"vertices": len(proxy.vertices), "tets": len(proxy.tets), "cached": cached},
+            "proxy": {
+                "vertices": len(proxy.vertices),
+                "tets": len(proxy.tets),
+                "cached": cached,
+                "key": key,
+                "reused_from": None if proxy_from is None else str(Path(proxy_from).resolve()),
+            },
             "timings_s": clock.seconds,
             "per_frame": [dataclasses.asdict(r) for r in reports],
         }

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from nerfedit_plugin.edit.deformer import Deformer
 from nerfedit_plugin.edit.proxy import TetProxy
 from nerfedit_plugin.edit.spec import EditSpec
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -40,6 +40,12 @@ class LiftConfig:
     """Upper bound on ARAP local/global iterations per frame."""
     tolerance: float = 1e-6
     """Stop when the relative energy decrease falls below this."""
+
+    def __post_init__(self) -> None:
+        weight, iterations, tolerance = self.constraint_weight, self.max_iterations, self.tolerance
+        check_option(self, "constraint_weight", weight, 0 < weight < np.inf, "a positive number")
+        check_option(self, "max_iterations", iterations, iterations >= 1, "a positive integer")
+        check_option(self, "tolerance", tolerance, 0 <= tolerance < np.inf, "a number >= 0")
 
 
 @dataclasses.dataclass

@@ -7,6 +7,16 @@ every surface vertex located exactly (float64) in the tets. Decimation and tetwi
 offset, even inside the surface: unless every surface vertex lies in a tet, at least ``min_margin`` x offset from
 the tet boundary, the offset grows and the build repeats (bounded), then fails with :class:`NerfEditError` (never
 clamps). ``cached_proxy`` stores the result as ``<cache_dir>/<sha256 of mesh + parameters>.npz``.
+
+Scale: every step runs on the mesh mapped into its :func:`unit_frame` (centred, unit bbox diagonal) and the result
+is mapped back, so the build does not depend on the mesh's size or position (fTetWild segfaults on a mesh 1e-6
+across; Open3D's float32 distances lose the margin far from the origin).
+
+Determinism: the alpha wrap, the decimation and everything after pytetwild are deterministic; pytetwild is not.
+fTetWild shuffles the input triangles with ``std::mt19937`` seeded by ``std::random_device`` (``sort_input_faces``
+in TriangleInsertion.cpp; the switch ``not_sort_input`` is not exposed by pytetwild), so two cold builds of the same
+input differ (with one thread too). Same input, same proxy holds through the cache and through
+:func:`proxy_from_tets` (an edit re-run with the proxy of an earlier edit: ``nerfedit edit --proxy-from EDIT``).
 """
 
 from __future__ import annotations
@@ -35,7 +45,7 @@ from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.timing import Stopwatch
 
-PROXY_FORMAT = 1
+PROXY_FORMAT = 2
 """Version of the build algorithm and file layout; part of the cache key (bump to invalidate old caches)."""
 
 
@@ -259,28 +269,69 @@ def embed_points(vertices: np.ndarray, tets: np.ndarray, points: np.ndarray) -> 
     return tet.cpu().numpy().astype(np.int64), bary.cpu().numpy().astype(np.float64)
 
 
+def embed_surface(vertices: np.ndarray, tets: np.ndarray, mesh: SurfaceMesh) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`embed_points` of the vertices of ``mesh`` in the tets, both mapped into the :func:`unit_frame` of
+    ``mesh`` (barycentrics do not change under the similarity; the location does not depend on scale or position).
+    A function of its arguments only: a proxy re-used from an edit folder gets the embedding it was built with."""
+    centre, scale = unit_frame(mesh)
+    return embed_points((vertices - centre) / scale, tets, (mesh.vertices - centre) / scale)
+
+
+def unit_frame(mesh: SurfaceMesh) -> tuple[np.ndarray, float]:
+    """→ ``(centre (3,) float64, scale float)``: the bounding-box centre and diagonal of ``mesh``. The build works on
+    ``(vertices - centre) / scale`` (unit diagonal, centred), so nothing in it depends on the mesh's absolute size or
+    position: fTetWild's absolute tolerances crash it (segfault) on a cow 1e-6 across, Open3D's float32 distances
+    lose the margin far from the origin."""
+    low, high = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    return (low + high) / 2, float(mesh.bbox_diagonal)
+
+
+def proxy_from_tets(vertices: np.ndarray, tets: np.ndarray, mesh: SurfaceMesh, where: str) -> TetProxy:
+    """A proxy built before (vertices (N,3) float, tets (K,4) int, e.g. the rest proxy of a ``deformation.npz``)
+    with ``mesh`` embedded again by :func:`embed_surface`: the same arrays as the build gave. The cage is the tets'
+    boundary surface. Raises :class:`NerfEditError` (naming ``where``) when a vertex of ``mesh`` lies outside."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    tets = np.ascontiguousarray(tets, dtype=np.int64)
+    _check_mesh(mesh)
+    embed_tets, embed_bary = embed_surface(vertices, tets, mesh)
+    n_outside = int((embed_tets < 0).sum())
+    if n_outside:
+        raise NerfEditError(
+            f"{where}: {n_outside} of {mesh.n_vertices} mesh vertices lie outside its tet proxy (another mesh?)"
+        )
+    cage = SurfaceMesh(vertices, boundary_faces(tets))
+    return TetProxy(vertices, tets, cage, embed_tets, embed_bary, {"reused": where, "format": PROXY_FORMAT})
+
+
 def build_proxy(mesh: SurfaceMesh, config: ProxyConfig | None = None, camera_distance: float | None = None) -> TetProxy:
     """Build the tet proxy of ``mesh`` (see the module docstring); raises :class:`NerfEditError` on bad input
     or when ``config.max_attempts`` growing offsets all leave a surface vertex outside the tets or closer than
-    ``config.min_margin`` x offset to their boundary. ``config`` defaults to ``ProxyConfig()``."""
+    ``config.min_margin`` x offset to their boundary. ``config`` defaults to ``ProxyConfig()``.
+
+    Every scale-sensitive step (wrap, decimation, pytetwild, embedding, margin) runs on the mesh mapped into its
+    :func:`unit_frame`; the tets and the cage are mapped back (barycentrics are invariant under the similarity)."""
     config = ProxyConfig() if config is None else config
     config.validate()
     _check_mesh(mesh)
     offset = resolve_offset(mesh, config, camera_distance)
+    centre, scale = unit_frame(mesh)
+    unit = mesh.with_vertices((mesh.vertices - centre) / scale)
     times: dict[str, float] = {}
     clock = Stopwatch(seconds=times, digits=None)  # stages repeat across attempts: their times add up
     for attempt in range(1, config.max_attempts + 1):
-        cage = build_cage(mesh, offset, config, times)
+        unit_offset = offset / scale
+        cage = build_cage(unit, unit_offset, config, times)
         with clock.stage("tetwild"):
             raw_vertices, raw_tets = tetrahedralize(cage, config)
         with clock.stage("clean"):
-            vertices, tets, n_dropped = clean_tets(raw_vertices, raw_tets)
+            unit_vertices, tets, n_dropped = clean_tets(raw_vertices, raw_tets)
+            vertices = unit_vertices * scale + centre
         with clock.stage("embed"):
-            embed_tets, embed_bary = embed_points(vertices, tets, mesh.vertices)
+            embed_tets, embed_bary = embed_surface(vertices, tets, mesh)
         n_outside = int((embed_tets < 0).sum())
         if n_outside == 0:
-            with clock.stage("margin"):
-                margin = float(distance_to_boundary(vertices, tets, mesh.vertices).min()) / offset
+            with clock.stage("margin"):  # Open3D's float32 distances: in the unit frame
+                margin = float(distance_to_boundary(unit_vertices, tets, unit.vertices).min()) / unit_offset
             if margin >= config.min_margin:
                 info = {
                     "offset": offset,
@@ -289,8 +340,10 @@ def build_proxy(mesh: SurfaceMesh, config: ProxyConfig | None = None, camera_dis
                     "times": times,
                     "dropped_degenerate_tets": n_dropped,
                     "cage_faces": len(cage.faces),
+                    "unit_frame": {"centre": centre.tolist(), "scale": scale},
                     "format": PROXY_FORMAT,
                 }
+                cage = cage.with_vertices(cage.vertices * scale + centre)
                 return TetProxy(vertices, tets, cage, embed_tets, embed_bary, info)
         offset *= config.offset_growth
     problem = (

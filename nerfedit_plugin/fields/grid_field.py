@@ -10,11 +10,13 @@ begins as a plain RGB grid.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any, Literal
 
 import torch
 
+from nerfedit_plugin.errors import OptionError, check_option
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.encoding import spherical_harmonics
 from nerfedit_plugin.training.trainer import TrainerConfig
@@ -56,6 +58,10 @@ class GridFieldConfig(FieldConfig):
     train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
     """Optimisation budget and schedule."""
 
+    def __post_init__(self) -> None:
+        """Reject values the field cannot be built or trained with (:class:`OptionError` naming the option)."""
+        check_grid_config(self)
+
     @classmethod
     def tiny(cls, seconds: float = 5.0, **overrides: Any) -> GridFieldConfig:
         """A small, fast preset for tests and smoke runs (``seconds`` of training, no progress bar)."""
@@ -69,6 +75,52 @@ class GridFieldConfig(FieldConfig):
             train=TrainerConfig.tiny(seconds),
         )
         return cls(**{**preset, **overrides})
+
+
+def check_grid_config(config: GridFieldConfig) -> None:
+    """The checks of :meth:`GridFieldConfig.__post_init__` (grid, decoder, occupancy, learning rates, budget)."""
+    levels = len(config.upsample_steps)
+    check_option(config, "resolution", config.resolution, config.resolution >= 1, "a positive integer")
+    for step in config.upsample_steps:
+        check_option(config, "upsample_steps", config.upsample_steps, step >= 1, "positive step numbers")
+    start, occupancy = config.resolution >> levels, config.occupancy_resolution
+    check_option(config, "occupancy_resolution", occupancy, 0 <= occupancy <= 256, "in [0, 256] (0: no occupancy grid)")
+    if start << levels != config.resolution or (occupancy and start % occupancy):
+        multiple = (1 << levels) * max(occupancy, 1)
+        raise OptionError(
+            config,
+            "resolution",
+            f"must be a multiple of {multiple} (2^{levels} for the {levels} upsample_steps × occupancy_resolution "
+            f"{occupancy}; lower occupancy_resolution or give fewer upsample_steps for a smaller grid), "
+            f"got {config.resolution}",
+        )
+    check_option(config, "features", config.features, config.features >= 3, "at least 3")
+    if config.decoder == "rgb":
+        check_option(config, "features", config.features, config.features == 3, "exactly 3 with decoder rgb")
+    check_option(config, "hidden", config.hidden, config.hidden >= 1, "a positive integer")
+    check_option(config, "sh_degree", config.sh_degree, config.sh_degree in (0, 1, 2), "0, 1 or 2")
+    check_option(config, "occupancy_dilation", config.occupancy_dilation, config.occupancy_dilation >= 0, ">= 0")
+    check_option(config, "occupancy_warmup", config.occupancy_warmup, config.occupancy_warmup >= 0, ">= 0")
+    check_option(config, "occupancy_every", config.occupancy_every, config.occupancy_every >= 1, ">= 1")
+    for name in ("lr_grid", "lr_mlp"):
+        value = getattr(config, name)
+        check_option(config, name, value, 0 < value < math.inf, "a positive number")
+    check_trainer_config(config, config.train, "train.")
+
+
+def check_trainer_config(config: Any, train: TrainerConfig, prefix: str) -> None:
+    """Check a backend's :class:`TrainerConfig` (option names ``prefix + field``; errors name ``config``)."""
+    positive = {"max_seconds": train.max_seconds, "lr_final_factor": train.lr_final_factor}
+    for name, value in positive.items():
+        check_option(config, prefix + name, value, 0 < value < math.inf, "a positive number")
+    for name in ("max_steps", "batch_rays", "n_samples", "eval_views", "log_every"):
+        value = getattr(train, name)
+        check_option(config, prefix + name, value, value >= 1, "a positive integer")
+    every = train.eval_every_seconds
+    check_option(config, prefix + "eval_every_seconds", every, 0 <= every < math.inf, ">= 0 (0: no evaluation)")
+    margin = train.foreground_margin
+    check_option(config, prefix + "foreground_margin", margin, margin >= -1, ">= -1 (-1: every pixel)")
+    check_option(config, prefix + "clock", train.clock, train.clock in ("wall", "cpu"), "wall or cpu")
 
 
 def start_resolution(config: Any) -> int:

@@ -11,12 +11,13 @@ vertex order). Point queries run on the CPU (Open3D ``RaycastingScene``); result
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -31,6 +32,10 @@ class MeshFieldConfig(FieldConfig):
     """Density returned inside the mesh (volume rendering of it is opaque within a few samples)."""
     padding: float = 0.05
     """Scene box of a mesh = its bounding box grown by this fraction of its diagonal on every side."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "density", self.density, 0 < self.density < math.inf, "a positive number")
+        check_option(self, "padding", self.padding, 0 <= self.padding < math.inf, "a number >= 0")
 
 
 class MeshField(Field):

@@ -17,6 +17,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from nerfedit_plugin.errors import check_option
 from nerfedit_plugin.fields.encoding import DenseGrid
 from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
 from nerfedit_plugin.fields.level_set import extract_level_set
@@ -45,6 +46,14 @@ class NerfConfig(GridFieldConfig):
     the opaque shell, so skipping the interior saves most samples of solid objects."""
     mesh_level: float = 25.0
     """Default density level of :meth:`NerfField.extract_mesh`."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_option(self, "density_init", self.density_init, 0 < self.density_init < math.inf, "a positive number")
+        threshold, shell, level = self.occupancy_threshold, self.occupancy_shell, self.mesh_level
+        check_option(self, "occupancy_threshold", threshold, 0 <= threshold < math.inf, "a number >= 0")
+        check_option(self, "occupancy_shell", shell, shell >= 0, ">= 0 (0: the whole interior)")
+        check_option(self, "mesh_level", level, 0 < level < math.inf, "a positive density")
 
     @classmethod
     def tiny(cls, seconds: float = 5.0, **overrides: Any) -> NerfConfig:

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from nerfedit_plugin.errors import check_option
 from nerfedit_plugin.fields.encoding import DenseGrid
 from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
 from nerfedit_plugin.fields.level_set import extract_level_set
@@ -61,6 +62,17 @@ class NeusConfig(GridFieldConfig):
     """Adam learning rate of ``log_s``."""
     train: TrainerConfig = dataclasses.field(default_factory=lambda: TrainerConfig(batch_rays=2048, n_samples=64))
     """Optimisation budget and schedule (the occupancy band makes 64 samples per ray enough)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("init_radius", "sharpness_init", "occupancy_band", "lr_sharpness"):
+            value = getattr(self, name)
+            check_option(self, name, value, 0 < value < math.inf, "a positive number")
+        check_option(self, "init_radius", self.init_radius, self.init_radius <= 1, "at most 1 (inside the box)")
+        weight = self.eikonal_weight
+        check_option(self, "eikonal_weight", weight, 0 <= weight < math.inf, "a number >= 0")
+        check_option(self, "eikonal_points", self.eikonal_points, self.eikonal_points >= 1, "a positive integer")
+        check_option(self, "anneal_steps", self.anneal_steps, self.anneal_steps >= 0, ">= 0")
 
     @classmethod
     def tiny(cls, seconds: float = 5.0, **overrides: Any) -> NeusConfig:

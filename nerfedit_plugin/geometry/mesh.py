@@ -30,9 +30,18 @@ class SurfaceMesh:
         if self.faces.ndim != 2 or self.faces.shape[1] != 3:
             raise NerfEditError(f"mesh faces: expected triangles (F,3), got {self.faces.shape}")
         if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
-            raise NerfEditError("mesh faces: vertex index out of range")
-        if not np.isfinite(self.vertices).all():
-            raise NerfEditError("mesh vertices: contain NaN or Inf")
+            face = int(np.flatnonzero(((self.faces < 0) | (self.faces >= len(self.vertices))).any(1))[0])
+            raise NerfEditError(
+                f"mesh faces: face {face} {self.faces[face].tolist()} has a vertex index out of range "
+                f"(the mesh has {len(self.vertices)} vertices)"
+            )
+        finite = np.isfinite(self.vertices).all(1)
+        if not finite.all():
+            first = int(np.flatnonzero(~finite)[0])
+            raise NerfEditError(
+                f"mesh vertices: vertex {first} is {self.vertices[first].tolist()} "
+                f"({np.count_nonzero(~finite)} vertices contain NaN or Inf)"
+            )
         if self.vertex_colors is not None:
             colors = np.asarray(self.vertex_colors, dtype=np.float64)
             if colors.max(initial=0.0) > 1.0:
@@ -119,7 +128,10 @@ class SurfaceMesh:
             raise NerfEditError(f"{path}: cannot read mesh ({exc})") from exc
         if not hasattr(loaded, "faces") or len(loaded.faces) == 0:
             raise NerfEditError(f"{path}: no triangles in file")
-        return cls.from_trimesh(loaded)
+        try:
+            return cls.from_trimesh(loaded)
+        except NerfEditError as exc:  # bad values in the file: name it
+            raise NerfEditError(f"{path}: {exc}") from exc
 
     def save(self, path: str | os.PathLike) -> None:
         """Write atomically; format from the suffix."""

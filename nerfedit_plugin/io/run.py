@@ -28,7 +28,7 @@ from nerfedit_plugin.data.datasets import Dataset, load_dataset, read_transforms
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.atomic import atomic_dir, atomic_path
+from nerfedit_plugin.io.atomic import atomic_dir, atomic_path, require_complete
 from nerfedit_plugin.io.checkpoint import load_field, save_field
 from nerfedit_plugin.registry import FIELDS, Registry, discover
 
@@ -86,6 +86,7 @@ class Run:
 def open_run(path: str | os.PathLike) -> Run:
     """Read ``RUN_DIR/config.yml``; a folder that is not a run is an error naming it."""
     path = Path(path)
+    require_complete(path, "run folder")
     file = path / CONFIG
     if not file.is_file():
         raise NerfEditError(f"{path}: not a run folder (no {CONFIG}; make one with `nerfedit train`)")

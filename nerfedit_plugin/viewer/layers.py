@@ -9,7 +9,11 @@ Windows need a display (``draw_geometries``); :func:`screenshot` renders offscre
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import stat
+import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -28,6 +32,8 @@ from nerfedit_plugin.registry import DEFORMERS, discover
 LAYERS = ("mesh", "deformed", "proxy", "deformed-proxy", "handles")
 DEFAULT_LAYERS = ("mesh", "deformed", "deformed-proxy", "handles")
 """Shown when no layers are named, with every overlay of the edit's deformer."""
+DEFAULT_FRONT = (0.3, 0.2, 1.0)
+"""Direction towards the camera of a screenshot of a y-up scene (slightly right of and above the front)."""
 FIXED, MOVED, OVERLAY = (0.15, 0.35, 0.95), (0.95, 0.2, 0.15), (0.2, 0.6, 0.3)
 
 
@@ -131,22 +137,33 @@ def screenshot(
     width: int = 960,
     height: int = 540,
     up: Sequence[float] = (0.0, 1.0, 0.0),
-    front: Sequence[float] = (0.3, 0.2, 1.0),
+    front: Sequence[float] | None = None,
 ) -> Path:
-    """Render ``geometries`` offscreen (no display needed) and write the PNG atomically."""
-    import open3d as o3d
-
+    """Render ``geometries`` offscreen (no display needed) and write the PNG atomically. ``up`` is the world's up
+    direction; ``front`` (towards the camera) defaults to :data:`DEFAULT_FRONT` turned with the rotation taking +y
+    to ``up`` (the same view of a y-up mesh and of its z-up copy in a `nerfedit generate` dataset)."""
     if not geometries:
         raise NerfEditError("show: nothing to draw")
+    up = _unit(up, "up")
+    front = _rotate_y_to(up, DEFAULT_FRONT) if front is None else _unit(front, "front")
+    ensure_runtime_dir()
+    import open3d as o3d
+
     vis = o3d.visualization.Visualizer()
-    if not vis.create_window(visible=False, width=width, height=height):
+    verbosity = o3d.utility.get_verbosity_level()
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # GLFW's "no platform", EGL's fallback notes
+    try:
+        created = vis.create_window(visible=False, width=width, height=height)
+    finally:
+        o3d.utility.set_verbosity_level(verbosity)
+    if not created:
         raise NerfEditError("screenshot: Open3D could not create an offscreen window (no display and no EGL)")
     try:
         for geometry in geometries:
             vis.add_geometry(geometry)
         view = vis.get_view_control()
-        view.set_up(list(up))
-        view.set_front(list(front))
+        view.set_up(up.tolist())
+        view.set_front(front.tolist())
         view.set_zoom(0.7)
         vis.get_render_option().point_size = 6.0
         vis.poll_events()
@@ -159,6 +176,42 @@ def screenshot(
     with atomic_path(path) as tmp:
         skimage.io.imsave(tmp, to_uint8(image), check_contrast=False)
     return Path(path)
+
+
+def _unit(vector: Sequence[float], name: str) -> np.ndarray:
+    v = np.asarray(vector, dtype=np.float64)
+    norm = float(np.linalg.norm(v)) if v.shape == (3,) else 0.0
+    if not (np.isfinite(norm) and norm > 0):
+        raise NerfEditError(f"{name}: expected a non-zero direction (3 finite numbers), got {tuple(np.ravel(v))}")
+    return v / norm
+
+
+def _rotate_y_to(up: np.ndarray, vector: Sequence[float]) -> np.ndarray:
+    """``vector`` turned by the shortest rotation taking +y to the unit vector ``up`` (Rodrigues)."""
+    v, y = np.asarray(vector, dtype=np.float64), np.array([0.0, 1.0, 0.0])
+    axis, cos = np.cross(y, up), float(y @ up)
+    if np.linalg.norm(axis) < 1e-12:
+        return v if cos > 0 else v * np.array([1.0, -1.0, -1.0])  # +y or -y: identity or half turn about x
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    rotation = np.eye(3) + k + k @ k / (1.0 + cos)
+    return rotation @ v
+
+
+def ensure_runtime_dir() -> None:
+    """Point ``XDG_RUNTIME_DIR`` at a private folder when it is unset or unusable, before Open3D starts: EGL/Mesa
+    otherwise print ``error: XDG_RUNTIME_DIR is invalid or not set`` (a warning of theirs, not an error of ours) on
+    every headless screenshot. A valid setting is left alone; the folder made here is removed at exit."""
+    current = os.environ.get("XDG_RUNTIME_DIR")
+    if current:
+        try:
+            info = os.stat(current)
+            if stat.S_ISDIR(info.st_mode) and info.st_uid == os.getuid() and stat.S_IMODE(info.st_mode) & 0o077 == 0:
+                return
+        except OSError:
+            pass
+    folder = tempfile.mkdtemp(prefix="nerfedit-runtime-")  # mode 0700, owned by this user
+    atexit.register(shutil.rmtree, folder, True)
+    os.environ["XDG_RUNTIME_DIR"] = folder
 
 
 def show(geometries: list, title: str = "nerfedit") -> None:

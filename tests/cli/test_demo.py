@@ -34,6 +34,10 @@ def test_tiny_demo_runs_every_stage(tmp_path, capsys):
     assert before.shape == after.shape and np.abs(before - after).max() > 0.1  # the edit shows in the render
     with Image.open(out / "renders" / "turntable.gif") as gif:
         assert gif.n_frames == 4
-    assert np.isfinite(summary["before"]["psnr"]) and np.isfinite(summary["after"]["psnr"])
+    # measured over 4 runs: PSNR 16.6-17.5 dB before, 16.9-17.9 dB after the edit (the rendered edit is as good as
+    # the unedited render); an all-background image scores ~10.8 dB on these views, their mean colour ~11.9 dB
+    before_psnr, after_psnr = summary["before"]["psnr"], summary["after"]["psnr"]
+    assert before_psnr > 15.0 and after_psnr > 15.0, (before_psnr, after_psnr)
+    assert abs(after_psnr - before_psnr) < 1.5, (before_psnr, after_psnr)
     rerun = parse(command("demo"), ["--load-config", str(out / "config.yml"), "--out", str(tmp_path / "again")])
     assert (rerun.preset, rerun.field, rerun.out) == ("tiny", "neus", tmp_path / "again")  # config.yml records the args

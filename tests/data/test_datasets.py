@@ -207,7 +207,7 @@ def test_bad_files_and_options(scene):
         load_dataset(root)
     write_json(root / "transforms_train.json", blender_transforms(cameras, names))
     (root / "imgs" / "f_2.png").write_bytes(b"garbage")
-    with pytest.raises(NerfEditError, match="f_2.png: cannot read image"):
+    with pytest.raises(NerfEditError, match=r"f_2.png: not a readable image \(unknown format or corrupt data\)"):
         load_dataset(root)
     with pytest.raises(NerfEditError, match="split: expected one of"):
         load_dataset(root, "training")

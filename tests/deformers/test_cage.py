@@ -249,8 +249,21 @@ def test_enclosure_agrees_with_winding_numbers_on_and_next_to_the_cage():
     assert inside[600:].any() and outside[600:].any()
 
 
-def test_enclosing_cage_does_not_warn(files, tmp_path):
-    edit = {"cage": files("cage.ply", CAGE), "deformed_cage": files("cage.ply", CAGE)}
+@pytest.mark.parametrize("coordinates", ["mvc", "green"])
+def test_enclosing_cage_does_not_warn(coordinates, files, tmp_path):
+    """Every mesh vertex inside the cage (winding number 1): no warning, and the map is right — the identity for an
+    unmoved cage, the similarity for a cage moved by one (both coordinates reproduce it exactly)."""
+    _, winding = mean_value_coordinates(REST.vertices, CAGE.vertices, CAGE.faces, return_winding=True)
+    assert np.abs(winding - 1).max() < 1e-9
+    r, b = SIMILARITY
+    edit = {
+        "cage": files("cage.ply", CAGE),
+        "deformed_cage": files("moved.ply", CAGE.with_vertices(CAGE.vertices @ r.T + b)),
+        "frames": 2,  # frame 0: the unmoved cage
+    }
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        bind(CageConfig(), edit, tmp_path)
+        out = bind(CageConfig(coordinates=coordinates), edit, tmp_path).deform()
+    assert out.shape == (2, REST.n_vertices, 3)
+    assert np.abs(out[0] - REST.vertices).max() < 1e-10
+    assert np.abs(out[1] - (REST.vertices @ r.T + b)).max() < 1e-10

@@ -67,3 +67,46 @@ def test_conformance_kit(check, tmp_path, rest):
     rest.save(tmp_path / "same.ply")
     rest.with_vertices(rest.vertices @ rot.T + 0.5).save(tmp_path / "rigid.ply")
     check(rest=rest, base_dir=tmp_path)
+
+
+def test_mesh_deformer_through_cli_writes_the_mesh_and_the_lifted_proxy(tmp_path, rest):
+    """``nerfedit edit --deformer mesh --lift closest-point`` (a coarse proxy, to be quick): the deformed mesh is the
+    edited file (the rest connectivity), the report names the lift, and deformation.npz holds the proxy moved by
+    the closest-point lift of the non-rigid map x ↦ (x, 1.3 y, 0.8 z): at a proxy vertex outside the (convex) mesh,
+    the displacement (0, 0.3 q_y, −0.2 q_z) of its closest surface point q (found here with trimesh, not Open3D)."""
+    from nerfedit_plugin.bending.deformation_field import DeformationField
+    from nerfedit_plugin.cli.app import main
+
+    stretch = np.array([1.0, 1.3, 0.8])
+    rest.with_vertices(rest.vertices * stretch).save(tmp_path / "edited.ply")
+    (tmp_path / "edit.json").write_text(json.dumps({"deformed": "edited.ply"}))
+    out = tmp_path / "out"
+    args = ["edit", "--mesh", str(tmp_path / "rest.ply"), "--edit", str(tmp_path / "edit.json"), "--out", str(out)]
+    args += ["--deformer", "mesh", "--lift", "closest-point", "--cache-dir", str(tmp_path / "cache")]
+    assert main([*args, "--proxy.edge-length-fac", "0.25", "--proxy.cage-faces", "200"]) == 0
+    deformed = SurfaceMesh.load(out / "deformed_mesh.ply")
+    np.testing.assert_array_equal(deformed.faces, rest.faces)
+    np.testing.assert_allclose(deformed.vertices, rest.vertices * stretch, rtol=0, atol=1e-6)
+    report = json.loads((out / "report.json").read_text())
+    assert (report["deformer"], report["lift"], report["frames"], len(report["per_frame"])) == (
+        "MeshDeformer",
+        "closest-point",
+        1,
+        1,
+    )
+    assert json.loads((out / "edit.json").read_text()) == {"deformed": "edited.ply"}
+    field = DeformationField.load(out / "deformation.npz")
+    assert field.n_frames == 1 and len(field.rest_vertices) == report["proxy"]["vertices"]
+    proxy, displacement = field.rest_vertices, field.deformed_vertices[0] - field.rest_vertices
+    triangles = rest.vertices[rest.faces]  # brute force: each proxy vertex against every triangle
+    pairs = trimesh.triangles.closest_point(np.tile(triangles, (len(proxy), 1, 1)), np.repeat(proxy, len(triangles), 0))
+    pairs = pairs.reshape(len(proxy), len(triangles), 3)
+    nearest = np.linalg.norm(pairs - proxy[:, None], axis=-1).argmin(1)
+    closest = pairs[np.arange(len(proxy)), nearest]
+    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])  # outward (convex mesh)
+    outside = (np.einsum("fd,nfd->nf", normals, proxy[:, None] - triangles[None, :, 0]) > 0).any(1)
+    outside &= np.linalg.norm(closest - proxy, axis=1) > 1e-3
+    assert outside.sum() > 30
+    expected = closest * (stretch - 1)
+    np.testing.assert_allclose(displacement[outside], expected[outside], rtol=0, atol=1e-5)
+    assert np.abs(displacement[:, 0]).max() < 1e-9  # every blend of zero x-displacements

@@ -111,3 +111,53 @@ def test_binding_groups_points_by_dominant_bone():
     assert np.array_equal(np.sort(np.concatenate(binding.dominated)), np.arange(len(POINTS)))
     for k, rows in enumerate(binding.dominated):
         assert (WEIGHTS[rows].argmax(1) == k).all()
+
+
+def quat_mul(p, q):
+    """Hamilton product of quaternions (w, x, y, z)."""
+    pw, pv, qw, qv = p[0], np.asarray(p[1:]), q[0], np.asarray(q[1:])
+    return np.concatenate([[pw * qw - pv @ qv], pw * qv + qw * pv + np.cross(pv, qv)])
+
+
+def hand_dqs(points, weights, duals, align):
+    """DQS point by point from docs/method.md: flip each bone's dual quaternion (J,8) to agree with bone
+    ``align[n]`` of point n, blend with the point's weights, divide by the real part's norm, and apply the unit dual
+    quaternion q + ε q_ε as the rotation of q (scipy) plus the translation 2 q_ε q* (the vector part)."""
+    out = np.empty_like(points)
+    for n, (x, w) in enumerate(zip(points, weights)):
+        reference = duals[align[n], :4]
+        blend = sum(w_j * np.sign(dq[:4] @ reference) * dq for w_j, dq in zip(w, duals))
+        real, dual = blend[:4] / np.linalg.norm(blend[:4]), blend[4:] / np.linalg.norm(blend[:4])
+        translation = 2.0 * quat_mul(dual, real * [1, -1, -1, -1])[1:]
+        out[n] = Rotation.from_quat(np.roll(real, -1)).apply(x) + translation
+    return out
+
+
+def test_dqs_aligns_signs_with_each_points_dominant_bone():
+    """Three bones whose rotation quaternions are pairwise in opposite hemispheres (half-angles 0°, 120°, 240° about
+    one axis: every pair has real-part dot product −1/2), so no sign choice puts all three in one hemisphere and the
+    blend depends on which bone the signs agree with: each point's dominant (largest-weight) bone."""
+    axis = np.array([1.0, -2.0, 2.0]) / 3.0
+    quats = np.array([np.concatenate([[np.cos(a)], np.sin(a) * axis]) for a in np.radians([0.0, 120.0, 240.0])])
+    assert np.allclose(quats @ quats.T, np.where(np.eye(3, dtype=bool), 1.0, -0.5))
+    rot = Rotation.from_quat(np.roll(quats, -1, axis=1)).as_matrix()  # scipy takes (x, y, z, w)
+    trans = np.array([[0.5, -0.2, 0.1], [-0.3, 0.8, 0.4], [0.2, 0.1, -0.9]])
+    weights = np.array([[0.5, 0.3, 0.2], [0.2, 0.5, 0.3], [0.3, 0.2, 0.5], [0.1, 0.6, 0.3], [0.35, 0.25, 0.4]])
+    weights = np.repeat(weights, 4, axis=0)
+    points = np.random.default_rng(11).uniform(-1, 1, (len(weights), 3))
+    # the bones' dual quaternions by hand, q_ε = ½ (0, t) q, with arbitrary signs (DQS must not depend on them)
+    duals = np.array(
+        [
+            s * np.concatenate([q, 0.5 * quat_mul(np.concatenate([[0.0], t]), q)])
+            for s, q, t in zip([1, -1, 1], quats, trans)
+        ]
+    )
+    dominant = weights.argmax(1)
+    expected = hand_dqs(points, weights, duals, dominant)
+    binding = Binding.create(points, weights)
+    np.testing.assert_allclose(dqs(binding, duals), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(skin(binding, rot, trans, "dqs"), expected, rtol=0, atol=1e-12)
+    # the choice matters: signs aligned with bone 0 would move every point that bone 1 or 2 dominates elsewhere
+    to_bone_0 = hand_dqs(points, weights, duals, np.zeros(len(points), dtype=int))
+    gap = np.linalg.norm(to_bone_0 - expected, axis=1)
+    assert set(dominant) == {0, 1, 2} and (gap[dominant > 0] > 0.1).all() and (gap[dominant == 0] < 1e-12).all()

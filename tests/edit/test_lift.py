@@ -88,3 +88,87 @@ def test_direct_lift_evaluates_the_space_map(capsule, capsule_proxy):
     assert np.allclose(lifted[0], bend(capsule_proxy.vertices))
     with pytest.raises(NerfEditError, match="has no deform_points"):
         Lift(capsule_proxy, capsule, "direct", deformer=Surface(DeformerConfig()))
+
+
+def closest_on_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Barycentrics (M,3) of the closest points of triangle (a, b, c) to points p (M,3): Ericson, *Real-Time
+    Collision Detection* §5.1.5 (Voronoi regions of the corners, then the edges, else the face)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = ap @ ab, ap @ ac
+    bp, cp = p - b, p - c
+    d3, d4, d5, d6 = bp @ ab, bp @ ac, cp @ ab, cp @ ac
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    denom = va + vb + vc
+    v, w = vb / denom, vc / denom  # inside the face
+    out = np.column_stack([1 - v - w, v, w])
+    regions = [  # later regions take precedence: corners last
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), lambda: np.column_stack([1 - d1 / (d1 - d3), d1 / (d1 - d3), 0 * d1])),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), lambda: np.column_stack([1 - d2 / (d2 - d6), 0 * d2, d2 / (d2 - d6)])),
+        (
+            (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+            lambda: np.column_stack(
+                [0 * d4, 1 - (d4 - d3) / ((d4 - d3) + (d5 - d6)), (d4 - d3) / ((d4 - d3) + (d5 - d6))]
+            ),
+        ),
+        ((d1 <= 0) & (d2 <= 0), lambda: np.tile([1.0, 0.0, 0.0], (len(p), 1))),
+        ((d3 >= 0) & (d4 <= d3), lambda: np.tile([0.0, 1.0, 0.0], (len(p), 1))),
+        ((d6 >= 0) & (d5 <= d6), lambda: np.tile([0.0, 0.0, 1.0], (len(p), 1))),
+    ]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for mask, bary in regions:
+            out = np.where(mask[:, None], bary(), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def lumpy():
+    """A small irregular closed mesh (an icosphere stretched and jittered: 42 vertices, 80 faces), a non-rigid motion of
+    it (the bend plus a random displacement per vertex) and query points around, inside and outside it."""
+    import trimesh
+
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    rng = np.random.default_rng(5)
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    vertices = np.asarray(sphere.vertices) * [0.5, 0.7, 1.0] + rng.uniform(-0.05, 0.05, (len(sphere.vertices), 3))
+    rest = SurfaceMesh(vertices, np.asarray(sphere.faces))
+    moved = bend(vertices, 0.8) + rng.normal(0, 0.1, vertices.shape)
+    points = rng.uniform(-1.2, 1.2, (400, 3)) * [0.7, 0.9, 1.3]
+    return rest, moved, points
+
+
+def test_closest_point_lift_blends_the_closest_triangles_corners(lumpy):
+    """Against brute force: each point's closest point on every triangle (Ericson), the nearest of them, and the
+    barycentric blend of that triangle's corner displacements (corner k weighs the displacement of faces[:, k]).
+    Where several triangles are nearly as close (a shared edge or corner, or a near tie), any of them will do."""
+    from nerfedit_plugin.edit.lift import closest_point_displacements
+
+    rest, moved, points = lumpy
+    corners = rest.vertices[rest.faces]  # (F,3,3)
+    displacement = (moved - rest.vertices)[rest.faces]  # (F,3,3)
+    bary = np.stack([closest_on_triangle(points, *corners[f]) for f in range(len(corners))], 1)  # (M,F,3)
+    closest = np.einsum("mfk,fkd->mfd", bary, corners)
+    distance = np.linalg.norm(closest - points[:, None], axis=-1)  # (M,F)
+    candidates = np.einsum("mfk,fkd->mfd", bary, displacement)
+    got = closest_point_displacements(rest, moved, points)
+    near = distance <= distance.min(1, keepdims=True) + 1e-6
+    error = np.where(near, np.linalg.norm(candidates - got[:, None], axis=-1), np.inf).min(1)
+    assert error.max() < 1e-5
+    inside = (bary[np.arange(len(points)), distance.argmin(1)] > 1e-3).all(1)
+    assert inside.sum() > 50  # many points project into a face's interior, not just onto edges and corners
+    assert np.abs(got).max() > 0.2  # the displacement is far from a translation: a wrong blend shows
+
+
+def test_knn3_lift_weighs_the_three_nearest_vertices_by_inverse_distance(lumpy):
+    from nerfedit_plugin.edit.lift import knn3_displacements
+
+    rest, moved, points = lumpy
+    distance = np.linalg.norm(points[:, None] - rest.vertices[None], axis=-1)  # (M,V)
+    order = np.argsort(distance, axis=1)
+    nearest = order[:, :3]
+    gap = np.take_along_axis(distance, order[:, 2:4], 1)
+    assert (gap[:, 1] - gap[:, 0] > 1e-9).all()  # no ties for the third nearest
+    weights = 1.0 / np.take_along_axis(distance, nearest, 1)
+    weights /= weights.sum(1, keepdims=True)
+    expected = np.einsum("mk,mkd->md", weights, (moved - rest.vertices)[nearest])
+    np.testing.assert_allclose(knn3_displacements(rest.vertices, moved, points), expected, rtol=0, atol=1e-12)

@@ -1,9 +1,14 @@
-"""TetProxy: orientation, exact embedding, enclosure, watertight cage, offsets, cache, bad input."""
+"""TetProxy: orientation, exact embedding, enclosure, watertight cage, offsets, cache, bad input, scale and position
+invariance, re-use of an edit's proxy."""
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import json
+import subprocess
+import sys
+import textwrap
 
 import igl
 import numpy as np
@@ -13,7 +18,15 @@ import trimesh
 
 from nerfedit_plugin.bending.locate import locate_brute_force
 from nerfedit_plugin.edit import proxy as proxy_module
-from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, build_proxy, cached_proxy, proxy_cache_key, resolve_offset
+from nerfedit_plugin.edit.proxy import (
+    ProxyConfig,
+    TetProxy,
+    build_proxy,
+    cached_proxy,
+    proxy_cache_key,
+    resolve_offset,
+    unit_frame,
+)
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import DEGENERATE_VOLUME_RATIO, boundary_faces, clean_tets, tet_signed_volumes
@@ -75,7 +88,7 @@ def assert_valid_proxy(proxy: TetProxy, mesh: SurfaceMesh, config: ProxyConfig =
     # the boundary surface is libigl's, oriented outward: it encloses exactly the tets' volume
     boundary = boundary_faces(tets)
     assert {tuple(f) for f in np.sort(boundary, 1)} == {tuple(f) for f in np.sort(igl.boundary_facets(tets)[0], 1)}
-    tri = vertices[boundary]
+    tri = vertices[boundary] - vertices.mean(0)  # about the proxy: no cancellation far from the origin
     enclosed = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6
     assert enclosed == pytest.approx(volumes.sum(), rel=1e-9)
     # margin: points min_margin x offset away from each surface vertex (6 axis directions) are inside tets too
@@ -124,12 +137,12 @@ def test_offset_from_camera_distance():
 
 
 def test_retry_grows_offset_until_enclosed_with_margin():
-    """An 8-face cage is an octahedron-like hull around the unit sphere: at offset 2/3 it cuts into the sphere
-    (vertices outside), at 1 it holds it with ~0.05 x offset to spare (< min_margin 0.1), at 1.5 with ~0.14."""
+    """An 8-face cage is an octahedron-like hull around the unit sphere: at offset 0.64 it cuts into the sphere
+    (vertices outside), at 0.8 it holds it with ~0.09 x offset to spare (< min_margin 0.1), at 1 with ~0.17."""
     mesh = sphere()
-    coarse = dataclasses.replace(FAST, cage_faces=8, offset=2 / 3, offset_growth=1.5, max_attempts=3, min_margin=0.1)
+    coarse = dataclasses.replace(FAST, cage_faces=8, offset=0.64, offset_growth=1.25, max_attempts=3, min_margin=0.1)
     proxy = build_proxy(mesh, coarse)
-    assert proxy.info["attempts"] == 3 and proxy.info["offset"] == pytest.approx(1.5)
+    assert proxy.info["attempts"] == 3 and proxy.info["offset"] == pytest.approx(1.0)
     assert_valid_proxy(proxy, mesh, coarse)
     with pytest.raises(NerfEditError, match="outside the tets"):
         build_proxy(mesh, dataclasses.replace(coarse, max_attempts=1))
@@ -248,3 +261,129 @@ def test_bad_input_raises(tmp_path):
     for field, value in [("offset", -1.0), ("cage_faces", 2), ("epsilon", 0.0), ("offset_growth", 1.0)]:
         with pytest.raises(NerfEditError, match=f"proxy.{field}"):
             build_proxy(sphere(), dataclasses.replace(FAST, **{field: value}))
+
+
+# ---- scale and position -----------------------------------------------------------------------------------------
+
+COARSE = ProxyConfig(cage_faces=200, edge_length_fac=0.2)
+SIMILARITIES = [(1e-6, 0.0), (1.0, 0.0), (1e6, 0.0), (1.0, 1e5)]  # (scale, offset of every coordinate)
+
+
+def test_mesher_input_is_the_same_at_any_scale_and_position(monkeypatch):
+    """What the scale-sensitive steps (wrap, decimation, pytetwild, margin) get is the mesh in its unit frame and the
+    offset in unit-frame units: the same, to rounding, whatever the mesh's size and position. (The cage itself is not
+    compared: the alpha wrap amplifies a 1e-16 change of its input into ~offset/2, and pytetwild is random.)"""
+    base = SurfaceMesh.load("sample:cow")
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def spy(mesh, offset, config, times=None):
+        seen.append((mesh.vertices.copy(), mesh.faces.copy(), offset))
+        raise Stop
+
+    monkeypatch.setattr(proxy_module, "build_cage", spy)
+    for scale, shift in SIMILARITIES:
+        with pytest.raises(Stop):
+            build_proxy(base.with_vertices(base.vertices * scale + shift), COARSE)
+    reference = seen[SIMILARITIES.index((1.0, 0.0))]
+    assert np.abs(reference[0]).max() <= 0.5 + 1e-12 and np.linalg.norm(np.ptp(reference[0], 0)) == pytest.approx(1)
+    for vertices, faces, offset in seen:
+        np.testing.assert_array_equal(faces, base.faces)
+        # 1e5 + a mesh 2 across: the input itself is only known to 1e5 x 2^-52 ~ 1e-11 (5e-12 of the diagonal)
+        assert np.abs(vertices - reference[0]).max() < 2e-11
+        assert offset == pytest.approx(COARSE.offset_bbox_fraction, rel=1e-12)
+
+
+def test_tiny_mesh_builds_in_a_subprocess():
+    """The bone scaled by 1e-6 segfaulted inside pytetwild (exit 139) before the unit frame; a subprocess, so that a
+    crash fails this test instead of killing pytest."""
+    script = textwrap.dedent(
+        """
+        import json
+        import numpy as np
+        from nerfedit_plugin.edit.proxy import ProxyConfig, build_proxy
+        from nerfedit_plugin.geometry.mesh import SurfaceMesh
+        base = SurfaceMesh.load("sample:bone")
+        mesh = base.with_vertices(base.vertices * 1e-6)
+        proxy = build_proxy(mesh, ProxyConfig(cage_faces=200, edge_length_fac=0.2))
+        error = np.abs(proxy.embedding_matrix() @ proxy.vertices - mesh.vertices).max() / mesh.bbox_diagonal
+        print(json.dumps({"info": proxy.info, "inside": bool((proxy.embed_tets >= 0).all()), "error": error,
+                          "diagonal": mesh.bbox_diagonal}))
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, f"exit {result.returncode}: {result.stderr[-2000:]}"
+    out = json.loads(result.stdout.strip().splitlines()[-1])
+    assert out["inside"] and out["error"] < 1e-9
+    assert out["info"]["margin"] >= COARSE.min_margin
+    assert out["info"]["offset"] == pytest.approx(0.02 * out["diagonal"] * 1.5 ** (out["info"]["attempts"] - 1))
+
+
+@pytest.mark.parametrize("scale, shift", [(1e6, 0.0), (1.0, 1e5)], ids=["1e6", "far"])
+def test_proxy_valid_when_large_or_far_from_origin(capsule, scale, shift):
+    """Every invariant of the contract holds with tolerances relative to the mesh's size (Open3D's float32 margin
+    at 1e5 alone would be off by ~1e-2, half the offset), and the proxy in its unit frame is where the unit-size one
+    is: its bounding box within the offset plus tetwild's envelope of the cage's."""
+    mesh = capsule.with_vertices(capsule.vertices * scale + shift)
+    proxy = build_proxy(mesh, COARSE)
+    assert_valid_proxy(proxy, mesh, COARSE)
+    centre, size = unit_frame(mesh)
+    assert proxy.info["unit_frame"] == {"centre": centre.tolist(), "scale": size}
+    unit = (proxy.vertices - centre) / size
+    reference = (capsule.vertices - unit_frame(capsule)[0]) / capsule.bbox_diagonal
+    offset = proxy.info["offset"] / size
+    assert np.all(unit.min(0) <= reference.min(0) - COARSE.min_margin * offset)
+    assert np.all(unit.max(0) >= reference.max(0) + COARSE.min_margin * offset)
+    assert np.all(unit.min(0) >= reference.min(0) - 2 * offset - COARSE.epsilon)
+    assert np.all(unit.max(0) <= reference.max(0) + 2 * offset + COARSE.epsilon)
+
+
+# ---- re-use of an edit's proxy ----------------------------------------------------------------------------------
+
+
+def test_rerun_with_proxy_from_is_bit_identical(tmp_path, capsule):
+    """pytetwild is random (two cold builds differ), so a re-run reuses the proxy of the edit: in a fresh process,
+    cold cache, the same deformation.npz byte for byte. Another mesh or other proxy settings are refused."""
+    from nerfedit_plugin.cli.app import main
+    from nerfedit_plugin.edit.job import reuse_proxy
+
+    capsule.save(tmp_path / "capsule.ply")
+    edit = {
+        "handles": [
+            {"select": {"box": {"min": [-1, -1, -1.1], "max": [1, 1, -0.6]}}, "fixed": True},
+            {"select": {"box": {"min": [-1, -1, 0.6], "max": [1, 1, 1.1]}}, "transform": {"translate": [0, 0.3, 0]}},
+        ],
+        "frames": 1,
+    }
+    (tmp_path / "edit.json").write_text(json.dumps(edit))
+    first = tmp_path / "first"
+    options = ["--proxy.cage-faces", "200", "--proxy.edge-length-fac", "0.2", "--cache-dir", str(tmp_path / "c1")]
+    argv = ["edit", "--mesh", str(tmp_path / "capsule.ply"), "--edit", str(tmp_path / "edit.json"), *options]
+    assert main([*argv, "--out", str(first)]) == 0
+    again = tmp_path / "again"
+    rerun = [*argv, "--cache-dir", str(tmp_path / "c2"), "--proxy-from", str(first), "--out", str(again)]
+    script = f"import sys; from nerfedit_plugin.cli.app import main; sys.exit(main({rerun!r}))"
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (again / "deformation.npz").read_bytes() == (first / "deformation.npz").read_bytes()
+    assert not (tmp_path / "c2").exists()  # nothing meshed
+    report = json.loads((again / "report.json").read_text())["proxy"]
+    assert (
+        report["reused_from"] == str(first)
+        and report["key"] == json.loads((first / "report.json").read_text())["proxy"]["key"]
+    )
+    assert "proxy_from" in (again / "config.yml").read_text()  # --load-config of the re-run re-uses it too
+    # the proxy is the build's: same tets, same embedding (recomputed from the same arrays)
+    built = TetProxy.load(next((tmp_path / "c1").glob("*.npz")))
+    rest = SurfaceMesh.load(tmp_path / "capsule.ply")  # as the command read it
+    reused = reuse_proxy(first, rest, COARSE)
+    for name in ("vertices", "tets", "embed_tets", "embed_bary"):
+        assert np.array_equal(getattr(reused, name), getattr(built, name))
+    with pytest.raises(NerfEditError, match="another mesh or other proxy settings"):
+        reuse_proxy(first, rest, FAST)
+    with pytest.raises(NerfEditError, match="another mesh or other proxy settings"):
+        reuse_proxy(first, rest.with_vertices(rest.vertices * 1.01), COARSE)
+    with pytest.raises(NerfEditError, match="records no proxy key"):
+        reuse_proxy(tmp_path, rest, COARSE)

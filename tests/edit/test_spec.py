@@ -169,3 +169,61 @@ def test_load_json_and_yaml_and_paths(tmp_path):
     (tmp_path / "m.json").write_text(json.dumps({"deformed": "nope.ply"}))
     with pytest.raises(NerfEditError, match="deformed: file not found"):
         load_edit_spec(tmp_path / "m.json", {"deformed"}).path("deformed")
+
+
+def rodrigues(axis, degrees: float) -> np.ndarray:
+    """Rotation matrix by ``degrees`` about ``axis`` (written out, not scipy)."""
+    k = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    angle = math.radians(degrees)
+    return np.eye(3) + math.sin(angle) * cross + (1 - math.cos(angle)) * cross @ cross
+
+
+@pytest.mark.parametrize("center", [[0.5, -0.25, 1.0], None])
+def test_every_frame_is_the_interpolated_similarity(center):
+    """``frames = 3``: t = 0, 1/2, 1 and ``x ↦ c + (1 + (s − 1)t) R(t)(x − c) + t·translate`` with every part of the
+    transform interpolated (scale too: frame 0 is the rest pose); ``c`` the rotate center, else the centroid."""
+    rotate = {"axis": [1.0, 2.0, -0.5], "degrees": 100.0}
+    if center is not None:
+        rotate["center"] = center
+    transform = {"translate": [0.3, -0.6, 0.9], "rotate": rotate, "scale": 2.5}
+    s = spec([{"select": {"box": {"min": [0, -1, -1], "max": [1, 1, 1]}}, "transform": transform}], frames=3)
+    idx, targets = s.handle_targets(GRID)
+    points = GRID[idx]
+    pivot = points.mean(0) if center is None else np.array(center)
+    assert targets.shape == (3, len(idx), 3)
+    for frame, t in enumerate([0.0, 0.5, 1.0]):
+        scale = 1 + (2.5 - 1) * t
+        expected = (
+            pivot + scale * (points - pivot) @ rodrigues(rotate["axis"], t * 100.0).T + t * np.array([0.3, -0.6, 0.9])
+        )
+        np.testing.assert_allclose(targets[frame], expected, rtol=0, atol=1e-12, err_msg=f"frame {frame}")
+    np.testing.assert_array_equal(targets[0], points)  # the rest pose exactly
+
+
+SCALAR_KEYS = [
+    (
+        lambda v: {"select": {"sphere": {"center": [0, 0, 0], "radius": v}}, "fixed": True},
+        "handles[0].select.sphere.radius",
+    ),
+    (
+        lambda v: {"select": {"indices": [0]}, "transform": {"rotate": {"axis": [0, 0, 1], "degrees": v}}},
+        "handles[0].transform.rotate.degrees",
+    ),
+    (lambda v: {"select": {"indices": [0]}, "transform": {"scale": v}}, "handles[0].transform.scale"),
+]
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf], ids=["nan", "inf", "-inf"])
+@pytest.mark.parametrize("handle, key", SCALAR_KEYS, ids=["radius", "degrees", "scale"])
+def test_non_finite_scalar_is_rejected(handle, key, value):
+    with pytest.raises(NerfEditError) as err:
+        parse_edit_spec({"handles": [handle(value)]}, source="e.json")
+    assert str(err.value) == f"e.json: {key}: is NaN or Inf"
+
+
+@pytest.mark.parametrize("text", [".nan", ".inf", "-.inf"])
+def test_non_finite_scalar_in_yaml_is_rejected(tmp_path, text):
+    (tmp_path / "e.yaml").write_text(f"handles:\n  - select: {{indices: [0]}}\n    transform: {{scale: {text}}}\n")
+    with pytest.raises(NerfEditError, match=r"e.yaml: handles\[0\].transform.scale: is NaN or Inf"):
+        load_edit_spec(tmp_path / "e.yaml")

