@@ -18,6 +18,7 @@ import importlib
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -152,13 +153,15 @@ def main(argv: list[str] | None = None) -> int:
 
         since, args = len(atomic.committed), None
         try:
-            from nerfedit_plugin.cli.common import parse, print_error
+            from nerfedit_plugin.cli.common import parse, print_error, print_warning
             from nerfedit_plugin.errors import NerfEditError
 
             spec = command(argv[0])
             try:
                 args = parse(spec, argv[1:])
-                spec.run(args)
+                with warnings.catch_warnings():  # a library's UserWarning is one line for the user, like an error
+                    warnings.showwarning = lambda message, *_, **__: print_warning(message)
+                    spec.run(args)
             except NerfEditError as exc:
                 if getattr(args, "verbose", False):
                     raise

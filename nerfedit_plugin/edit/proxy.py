@@ -26,13 +26,14 @@ import dataclasses
 import hashlib
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse
 
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these lived here before geometry.tets)
     DEGENERATE_VOLUME_RATIO,
@@ -75,23 +76,19 @@ class ProxyConfig:
     offset_growth: float = 1.5
     """Offset multiplier between attempts."""
 
+    def __post_init__(self) -> None:
+        self.validate()
+
     def validate(self) -> None:
-        """Raise :class:`NerfEditError` naming the first invalid field."""
+        """Raise :class:`OptionError` naming the first invalid field (the CLI says ``--proxy.NAME``)."""
         positive = ["offset_camera_fraction", "offset_bbox_fraction", "wrap_alpha_factor", "edge_length_fac", "epsilon"]
-        if self.offset is not None:
-            positive.append("offset")
-        for name in positive:
+        for name in positive + (["offset"] if self.offset is not None else []):
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise NerfEditError(f"proxy.{name}: must be a positive number, got {value!r}")
-        if not (np.isfinite(self.min_margin) and 0 <= self.min_margin < 1):
-            raise NerfEditError(f"proxy.min_margin: must be in [0, 1), got {self.min_margin!r}")
-        if self.cage_faces < 8:
-            raise NerfEditError(f"proxy.cage_faces: must be >= 8, got {self.cage_faces}")
-        if self.max_attempts < 1:
-            raise NerfEditError(f"proxy.max_attempts: must be >= 1, got {self.max_attempts}")
-        if not self.offset_growth > 1:
-            raise NerfEditError(f"proxy.offset_growth: must be > 1, got {self.offset_growth}")
+            check_option(self, name, value, bool(np.isfinite(value) and value > 0), "a positive number")
+        check_option(self, "min_margin", self.min_margin, bool(0 <= self.min_margin < 1), "in [0, 1)")
+        check_option(self, "cage_faces", self.cage_faces, self.cage_faces >= 8, ">= 8")
+        check_option(self, "max_attempts", self.max_attempts, self.max_attempts >= 1, ">= 1")
+        check_option(self, "offset_growth", self.offset_growth, bool(self.offset_growth > 1), "> 1")
 
 
 @dataclass
@@ -387,8 +384,8 @@ def cached_proxy(
     if path.is_file():
         try:
             return TetProxy.load(path), True
-        except NerfEditError:
-            pass  # unreadable cache entry: rebuild and overwrite it
+        except NerfEditError as exc:  # unreadable cache entry: say so once, rebuild and overwrite it
+            warnings.warn(f"{exc}; rebuilding the cache entry", stacklevel=2)
     proxy = build_proxy(mesh, config, camera_distance)
     proxy.save(path)
     return proxy, False

@@ -43,6 +43,8 @@ CASES = [
     (TRAIN + ["--field", "mesh", "--field-options.padding", "-1"], "--field-options.padding: must be a number >= 0"),
     (EDIT + ["--lift-options.max-iterations", "0"], "--lift-options.max-iterations: must be a positive integer"),
     (EDIT + ["--lift-options.constraint-weight", "-5"], "--lift-options.constraint-weight: must be a positive"),
+    (EDIT + ["--proxy.cage-faces", "2"], "--proxy.cage-faces: must be >= 8, got 2"),
+    (EDIT + ["--proxy.min-margin", "nan"], "--proxy.min-margin: must be in [0, 1)"),
     (["render", "--run", "r", "--cameras", "c", "--out", "o", "--supersample", "0"], "--supersample: must be"),
     (["render", "--run", "r", "--cameras", "c", "--out", "o", "--frame", "-1"], "--frame: must be >= 0"),
     (["extract", "--run", "r", "--resolution", "1"], "--resolution: must be an integer >= 2"),
