@@ -159,8 +159,16 @@ def main(argv: list[str] | None = None) -> int:
             spec = command(argv[0])
             try:
                 args = parse(spec, argv[1:])
-                with warnings.catch_warnings():  # a library's UserWarning is one line for the user, like an error
-                    warnings.showwarning = lambda message, *_, **__: print_warning(message)
+                with warnings.catch_warnings():  # a UserWarning is one line for the user, like an error
+                    shown = warnings.showwarning
+
+                    def show(message, category, *rest, **options):
+                        if issubclass(category, UserWarning):
+                            print_warning(message)
+                        else:  # deprecations and the like: as Python's filters decide
+                            shown(message, category, *rest, **options)
+
+                    warnings.showwarning = show
                     spec.run(args)
             except NerfEditError as exc:
                 if getattr(args, "verbose", False):

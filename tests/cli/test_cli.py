@@ -113,3 +113,16 @@ def test_plugins_lists_builtins(capsys):
     assert main(["plugins"]) == 0
     out = capsys.readouterr().out
     assert "arap" in out and "mesh" in out
+
+
+def test_a_corrupt_proxy_cache_entry_is_one_warning_line_and_rebuilt(workdir, capsys):
+    assert edit(workdir) == 0
+    (entry,) = (workdir / "cache").glob("*.npz")
+    entry.write_bytes(b"not a zip")
+    capsys.readouterr()
+    assert edit(workdir, "--overwrite") == 0
+    err = capsys.readouterr().err
+    assert err.startswith(f"warning: {entry}: not a readable tet proxy file") and err.count("\n") == 1, err
+    assert "rebuilding the cache entry" in err and "UserWarning" not in err
+    report = json.loads((workdir / "out" / "report.json").read_text())
+    assert not report["proxy"]["cached"] and np.load(entry)["tets"].shape[1] == 4
