@@ -11,6 +11,7 @@ import dataclasses
 import json
 import os
 import shutil
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
+from nerfedit_plugin.quality import edit_warnings
 from nerfedit_plugin.timing import Stopwatch
 
 
@@ -132,5 +134,8 @@ def run_edit(
             "timings_s": clock.seconds,
             "per_frame": [dataclasses.asdict(r) for r in reports],
         }
+        report["warnings"] = edit_warnings(report)
         (stage / "report.json").write_text(json.dumps(to_plain(report), indent=2))
+    for message in report["warnings"]:
+        warnings.warn(message, stacklevel=2)
     return EditResult(Path(out), report)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir, atomic_path, require_complete
 from nerfedit_plugin.io.checkpoint import load_field, save_field
+from nerfedit_plugin.quality import training_warnings
 from nerfedit_plugin.registry import FIELDS, Registry, discover
 
 CONFIG, CHECKPOINT, LOG, MESH = "config.yml", "field.pt", "log.json", "mesh.ply"
@@ -158,6 +160,8 @@ def train_run(
             (stage / LOG).write_text(json.dumps(to_plain(log)))
         if target.data == "mesh":
             field.extract_mesh().save(stage / MESH)
+    for message in training_warnings(log):
+        warnings.warn(f"{out}: {message}", stacklevel=2)
     return open_run(out), log
 
 

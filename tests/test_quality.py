@@ -1,0 +1,64 @@
+"""The one rule for results too poor to use (``nerfedit_plugin.quality``): the bounds, and the warning an edit or a
+training run gives when it crosses them."""
+
+import json
+
+import numpy as np
+
+from nerfedit_plugin.cli.app import main
+from nerfedit_plugin.quality import (
+    MAX_FOLDED_FACES,
+    MAX_INVERTED_TETS,
+    MIN_HELD_OUT_PSNR,
+    edit_warnings,
+    training_warnings,
+)
+
+
+def report(inverted, folded, tets=1000, faces=2000):
+    frames = [{"inverted_tets": i, "flipped_surface_faces": f} for i, f in zip(inverted, folded)]
+    return {"proxy": {"tets": tets}, "surface": {"faces": faces}, "per_frame": frames}
+
+
+def test_edit_bounds_are_fractions_of_the_proxy_and_the_surface():
+    at_bound = report([int(MAX_INVERTED_TETS * 1000)], [int(MAX_FOLDED_FACES * 2000)])
+    assert edit_warnings(at_bound) == []
+    (tets,) = edit_warnings(report([0, 11, 3], [0, 0, 0]))
+    assert tets.startswith("frame 1: 11 of 1000 inverted tets") and "more than 1%" in tets
+    (faces,) = edit_warnings(report([0], [21]))
+    assert faces.startswith("frame 0: 21 of 2000 folded surface faces") and "more than 1%" in faces
+    assert len(edit_warnings(report([50], [50]))) == 2
+
+
+def test_training_bound_is_the_last_held_out_psnr():
+    assert training_warnings({}) == []  # nothing held out, nothing to judge
+    assert training_warnings({"eval": [(1.0, 12.0), (9.0, MIN_HELD_OUT_PSNR)], "steps": 40}) == []
+    (message,) = training_warnings({"eval": [(1.0, 25.0), (9.0, 14.04)], "steps": 6})
+    assert message.startswith("held-out PSNR 14.0 dB after 6 steps is below 20 dB") and "max-steps" in message
+
+
+def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch, capsys):
+    """The top half of the capsule mirrored through z = 0 (given as the deformed mesh): its faces fold, and the lift
+    inverts the tets between; the edit is written, with one warning line per bound and the same in report.json."""
+    monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "cache"))
+    capsule.save(tmp_path / "rest.ply")
+    mirrored = capsule.vertices.copy()
+    top = mirrored[:, 2] > 0
+    mirrored[top, 2] *= -1
+    capsule.with_vertices(mirrored).save(tmp_path / "folded.ply")
+    (tmp_path / "edit.json").write_text(json.dumps({"deformed": "folded.ply"}))
+    argv = ["edit", "--mesh", str(tmp_path / "rest.ply"), "--deformer", "mesh", "--edit", str(tmp_path / "edit.json")]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    written = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert written["warnings"] == edit_warnings(written) and len(written["warnings"]) == 2
+    assert err == [f"warning: {message}" for message in written["warnings"]]
+    frame = written["per_frame"][0]
+    assert frame["flipped_surface_faces"] >= np.count_nonzero(top) // 2 and frame["inverted_tets"] > 0
+
+
+def test_a_field_trained_for_a_few_steps_warns(tiny_scene, tmp_path, capsys):
+    options = ["--field-options.train.max-steps", "2", "--field-options.train.no-progress"]
+    assert main(["train", "--data", str(tiny_scene), "--out", str(tmp_path / "run"), *options]) == 0
+    (line,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert "held-out PSNR" in line and "after 2 steps is below 20 dB" in line
