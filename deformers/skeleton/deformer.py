@@ -185,7 +185,11 @@ class Skeleton:
                 rot = check_keys(item["rotate"], required, source, f"{key}.rotate", required=required)
                 axis = vector(rot["axis"], source, f"{key}.rotate.axis")
                 degrees = rot["degrees"]
-                if isinstance(degrees, bool) or not isinstance(degrees, (int, float)) or not math.isfinite(degrees):
+                try:
+                    ok = not isinstance(degrees, bool) and isinstance(degrees, (int, float)) and math.isfinite(degrees)
+                except OverflowError:  # an integer beyond float range
+                    ok = False
+                if not ok:
                     raise NerfEditError(f"{source}: {key}.rotate.degrees: expected a finite number, got {degrees!r}")
                 if not np.linalg.norm(axis) > 0:
                     raise NerfEditError(f"{source}: {key}.rotate.axis: is the zero vector")

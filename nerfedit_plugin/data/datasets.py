@@ -192,9 +192,16 @@ def _check_camera_model(file: Path, obj: dict, where: str) -> None:
 
 def _number(file: Path, obj: dict, key: str, where: str) -> float:
     value = obj[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite(value):
         raise NerfEditError(f"{file}: {where}{key}: expected a finite number, got {value!r}")
     return float(value)
+
+
+def _finite(value: int | float) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int beyond float range (JSON allows it)
+        return False
 
 
 def _lookup(file: Path, meta: dict, frame: dict, key: str, where: str) -> float | None:
@@ -223,7 +230,7 @@ def _matrix(file: Path, frame: dict, where: str) -> np.ndarray:
         raise NerfEditError(f"{file}: {key}: missing key")
     try:
         matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: an integer beyond float range
         raise NerfEditError(f"{file}: {key}: expected a 4x4 matrix of numbers ({exc})") from exc
     if matrix.shape == (3, 4):
         matrix = np.vstack([matrix, [0.0, 0.0, 0.0, 1.0]])
@@ -264,6 +271,8 @@ def _intrinsics(file: Path, meta: dict, frame: dict, where: str, w: int, h: int)
     fy = _lookup(file, meta, frame, "fl_y", where)
     if fy is None:
         angle_y = _lookup(file, meta, frame, "camera_angle_y", where)
+        if angle_y is not None and not 0.0 < angle_y < math.pi:
+            raise NerfEditError(f"{file}: camera_angle_y: expected radians in (0, pi), got {angle_y}")
         fy = fx if angle_y is None else 0.5 * h / math.tan(0.5 * angle_y)
     if fx <= 0 or fy <= 0:
         raise NerfEditError(f"{file}: {where}: focal lengths must be positive, got fl_x={fx}, fl_y={fy}")

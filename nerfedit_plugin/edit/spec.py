@@ -55,7 +55,7 @@ def vector(value: Any, source: str, key: str, n: int = 3) -> np.ndarray:
     """``value`` (a list of ``n`` finite numbers) → (n,) float64, else :func:`spec_error` naming ``key``."""
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float range
         raise spec_error(source, key, f"expected {n} numbers, got {value!r}") from None
     if arr.shape != (n,):
         raise spec_error(source, key, f"expected {n} numbers, got {value!r}")
@@ -69,6 +69,10 @@ def number(value: Any, source: str, key: str, positive: bool = False) -> float:
     naming ``key``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise spec_error(source, key, f"expected a number, got {value!r}")
+    try:
+        value = float(value)
+    except OverflowError:  # an integer beyond float range
+        raise spec_error(source, key, "is too large") from None
     if not math.isfinite(value):
         raise spec_error(source, key, "is NaN or Inf")
     if positive and value <= 0:
@@ -171,10 +175,17 @@ class EditSpec:
         value = self.extra[key]
         if not isinstance(value, (str, os.PathLike)):
             raise spec_error(self.source, key, f"expected a file path, got {value!r}")
-        resolved = (self.base_dir / value).resolve()
+        resolved = self._resolve(value, key)
         if not resolved.is_file():
             raise spec_error(self.source, key, f"file not found: {resolved}")
         return resolved
+
+    def _resolve(self, value: Any, key: str) -> Path:
+        """``base_dir / value`` resolved; a name the OS cannot represent (e.g. a NUL byte) is a spec error."""
+        try:
+            return (self.base_dir / value).resolve()
+        except (OSError, ValueError) as exc:
+            raise spec_error(self.source, key, f"invalid file path {value!r} ({exc})") from None
 
     def paths(self, key: str) -> list[Path]:
         """Resolve a list of files or one glob pattern under ``key`` (sorted); at least one must exist."""
@@ -189,7 +200,7 @@ class EditSpec:
         if isinstance(value, list) and value:
             out = []
             for i, item in enumerate(value):
-                resolved = (self.base_dir / str(item)).resolve()
+                resolved = self._resolve(str(item), f"{key}[{i}]")
                 if not resolved.is_file():
                     raise spec_error(self.source, f"{key}[{i}]", f"file not found: {resolved}")
                 out.append(resolved)
@@ -221,6 +232,9 @@ def _parse_selection(obj: Any, source: str, key: str) -> Selection:
         or not all(isinstance(i, int) and not isinstance(i, bool) for i in value)
     ):
         raise spec_error(source, key, "expected a non-empty list of integer vertex indices")
+    big = next((i for i in value if not -(2**63) <= i < 2**63), None)
+    if big is not None:
+        raise spec_error(source, key, f"index {big} out of range")
     return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)
 
 
@@ -280,7 +294,10 @@ def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("hand
     path = Path(path)
     if not path.is_file():
         raise NerfEditError(f"{path}: edit spec not found")
-    text = path.read_text()
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise NerfEditError(f"{path}: cannot read ({exc})") from exc
     try:
         data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError) as exc:
