@@ -17,6 +17,7 @@ import skimage.io
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
+from tree_edits import nodes, replaced
 
 from nerfedit_plugin.data.datasets import read_transforms
 from nerfedit_plugin.errors import NerfEditError
@@ -81,25 +82,6 @@ def schema(fmt: str) -> dict:
 
 def pattern(path: tuple) -> tuple:
     return tuple("*" if isinstance(p, int) else p for p in path)
-
-
-def nodes(tree, prefix=()):
-    items = tree.items() if isinstance(tree, dict) else enumerate(tree) if isinstance(tree, list) else ()
-    for key, value in items:
-        yield prefix + (key,), value
-        yield from nodes(value, prefix + (key,))
-
-
-def replaced(tree, path, value, delete=False):
-    out = copy.deepcopy(tree)
-    node = out
-    for key in path[:-1]:
-        node = node[key]
-    if delete:
-        del node[path[-1]]
-    else:
-        node[path[-1]] = value
-    return out
 
 
 # ---- good files ----------------------------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ import pytest
 import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tree_edits import nodes, replaced
 
 from deformers.skeleton import SkeletonConfig, SkeletonDeformer
 from deformers.skeleton.bvh import parse_bvh
@@ -67,25 +68,6 @@ CLOSED = {(), ("joints", "*"), ("pose", "*"), ("pose", "*", "rotate")}  # a spec
 
 def pattern(path: tuple) -> tuple:
     return tuple("*" if isinstance(p, int) or (i == 1 and path[0] == "pose") else p for i, p in enumerate(path))
-
-
-def nodes(tree, prefix=()):
-    items = tree.items() if isinstance(tree, dict) else enumerate(tree) if isinstance(tree, list) else ()
-    for key, value in items:
-        yield prefix + (key,), value
-        yield from nodes(value, prefix + (key,))
-
-
-def replaced(tree, path, value, delete=False):
-    out = copy.deepcopy(tree)
-    node = out
-    for key in path[:-1]:
-        node = node[key]
-    if delete:
-        del node[path[-1]]
-    else:
-        node[path[-1]] = value
-    return out
 
 
 # ---- good inputs ---------------------------------------------------------------------------------------------------

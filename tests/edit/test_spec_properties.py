@@ -21,6 +21,8 @@ import trimesh
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tree_edits import nodes
+from tree_edits import replaced as replace_node
 
 from deformers.arap import ArapConfig, ArapDeformer
 from deformers.cage import CageConfig, CageDeformer
@@ -114,24 +116,9 @@ def pattern(path: tuple) -> tuple:
     return tuple("*" if isinstance(p, int) else p for p in path)
 
 
-def nodes(tree, prefix=()):
-    """(path, value) of every node below the root."""
-    items = tree.items() if isinstance(tree, dict) else enumerate(tree) if isinstance(tree, list) else ()
-    for key, value in items:
-        yield prefix + (key,), value
-        yield from nodes(value, prefix + (key,))
-
-
 def replaced(tree, path, value):
-    out = copy.deepcopy(tree)
-    node = out
-    for key in path[:-1]:
-        node = node[key]
-    if value is _DELETE:
-        del node[path[-1]]
-    else:
-        node[path[-1]] = value
-    return out
+    """``tree`` with the node at ``path`` set to ``value``, or deleted for :data:`_DELETE`."""
+    return replace_node(tree, path, value, delete=value is _DELETE)
 
 
 _DELETE = object()
