@@ -127,8 +127,15 @@ def _interrupted(name: str, exc: KeyboardInterrupt, since: int) -> int:
 
     signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
     kept = list(dict.fromkeys(path for path in atomic.committed[since:] if path.exists()))
-    what = "nothing written" if not kept else "kept (complete): " + ", ".join(map(str, kept[:3]))
-    what += f" and {len(kept) - 3} more" if len(kept) > 3 else ""
+    parts = []
+    for label, paths in (
+        ("complete", [p for p in kept if not atomic.is_partial(p)]),
+        ("partial", [p for p in kept if atomic.is_partial(p)]),
+    ):
+        if paths:
+            more = f" and {len(paths) - 3} more" if len(paths) > 3 else ""
+            parts.append(f"kept ({label}): " + ", ".join(map(str, paths[:3])) + more)
+    what = "; ".join(parts) or "nothing written"
     with contextlib.suppress(OSError):  # e.g. SIGHUP: the terminal is gone
         sys.stderr.write(f"nerfedit {name}: interrupted ({signal.Signals(signum).name}); {what}\n")
         sys.stderr.flush()

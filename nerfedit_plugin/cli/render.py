@@ -51,6 +51,7 @@ def render_run(
     from nerfedit_plugin.config import write_config
     from nerfedit_plugin.data.datasets import read_transforms
     from nerfedit_plugin.io.atomic import atomic_dir
+    from nerfedit_plugin.io.faults import fault_point
     from nerfedit_plugin.render.views import default_render_config, render_views, write_images
 
     field = run.field()
@@ -63,6 +64,7 @@ def render_run(
         for f in frames:
             images = render_views(field, transforms.cameras, config, deformation=bent, frame=f, supersample=supersample)
             write_images(images, names, stage if len(frames) == 1 else stage / f"frame_{f:04d}")
+            fault_point("render.frame")
         if record is not None:
             write_config(stage / CONFIG, record)
     return Path(out)

@@ -32,6 +32,8 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+from nerfedit_plugin.io.faults import fault_point
+
 STAGING = "nerfedit-staging"
 """The tag in the name of every staging file and folder."""
 PARTIAL = ".nerfedit-partial"
@@ -156,6 +158,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     tmp = _create(path.parent, path.stem, path.suffix, directory=False)
     try:
         yield str(tmp)
+        fault_point("atomic.file.staged")
         with _uninterrupted():
             os.replace(tmp, path)
             _record(path)
@@ -171,11 +174,13 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Path]:
+def atomic_dir(path: str | os.PathLike, overwrite: bool = False, keep_partial: bool = False) -> Iterator[Path]:
     """Yield a staging folder beside ``path``; on success it becomes ``path``, on error it is removed.
 
     An existing non-empty ``path`` (or a partial one) is an error unless ``overwrite`` (then it is replaced only
-    after success). Stale staging entries of dead processes beside ``path`` are removed first.
+    after success). Stale staging entries of dead processes beside ``path`` are removed first. With
+    ``keep_partial``, a staging folder marked partial (:func:`mark_partial`) when the error strikes becomes ``path``
+    instead of being removed — when nothing is at ``path`` (a previous output is never replaced by a partial one).
     """
     from nerfedit_plugin.errors import NerfEditError
 
@@ -192,16 +197,22 @@ def atomic_dir(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pat
     old = None
     try:
         yield stage
+        fault_point("atomic.dir.staged")
         with _uninterrupted():
             if path.is_dir():
                 old = _create(path.parent, path.name, directory=True, old=True)
                 os.replace(path, old / path.name)
+                fault_point("atomic.dir.swap")
             os.replace(stage, path)
             _record(path)
+            fault_point("atomic.dir.committed")
     except BaseException:
         with _uninterrupted():
             if old is not None and (old / path.name).is_dir() and not path.exists():
                 os.replace(old / path.name, path)  # the swap failed half-way: the previous output goes back
+            if keep_partial and stage.is_dir() and is_partial(stage) and not _occupied(path):
+                os.replace(stage, path)
+                _record(path)
             shutil.rmtree(stage, ignore_errors=True)
             if old is not None:
                 shutil.rmtree(old, ignore_errors=True)
@@ -210,12 +221,23 @@ def atomic_dir(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pat
         shutil.rmtree(old, ignore_errors=True)
 
 
+def _occupied(path: Path) -> bool:
+    """Something is at ``path`` (an empty folder is not something)."""
+    return path.exists() and not (path.is_dir() and not any(path.iterdir()))
+
+
 def mark_partial(folder: str | os.PathLike, info: dict | None = None) -> Path:
     """Mark ``folder`` as a partial output (write :data:`PARTIAL`, JSON ``info``, e.g. what is done): write it
     before anything else of the folder, and remove it last, once the folder is complete."""
     marker = Path(folder) / PARTIAL
     write_text(marker, json.dumps(info or {}))
     return marker
+
+
+def clear_partial(folder: str | os.PathLike) -> None:
+    """Remove the :data:`PARTIAL` marker: the last step of completing a folder that was marked partial."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(Path(folder) / PARTIAL)
 
 
 def is_partial(folder: str | os.PathLike) -> bool:

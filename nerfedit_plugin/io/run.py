@@ -8,6 +8,9 @@
                         run has it at once (the field's own mesh, in its vertex order)
 
 A run is written atomically (never half a run on disk); an extracted ``mesh.ply`` is added atomically afterwards.
+Training checkpoints into the run's staging folder every ``checkpoint_every_seconds``, marked partial; an
+interrupted ``train`` keeps the last one as a *partial* run (``.nerfedit-partial`` holds its steps and seconds),
+which every reader refuses — unless a previous run is at the path, which stays as it was.
 Backends whose ``Field.data == "mesh"`` are built from a mesh file with ``from_mesh`` and their mesh is written in the
 same atomic stage; the others ``fit`` an image dataset (the ``test`` split, else ``val``, is used for the held-out
 PSNR curve).
@@ -29,10 +32,12 @@ from nerfedit_plugin.data.datasets import Dataset, load_dataset, read_transforms
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.atomic import atomic_dir, atomic_path, require_complete
+from nerfedit_plugin.io.atomic import atomic_dir, atomic_path, clear_partial, mark_partial, require_complete
 from nerfedit_plugin.io.checkpoint import load_field, save_field
+from nerfedit_plugin.io.faults import fault_point
 from nerfedit_plugin.quality import training_warnings
 from nerfedit_plugin.registry import FIELDS, Registry, discover
+from nerfedit_plugin.training.trainer import checkpoints
 
 CONFIG, CHECKPOINT, LOG, MESH = "config.yml", "field.pt", "log.json", "mesh.ply"
 
@@ -141,25 +146,32 @@ def train_run(
     if target.data == "mesh":
         if not data.is_file():
             raise NerfEditError(f"{data}: the {backend!r} field is built from a mesh file (PLY/OBJ/OFF/GLB)")
-        field, log = target.from_mesh(SurfaceMesh.load(data), config).to(device), {}
-    else:
-        if _is_mesh_file(data):
-            raise NerfEditError(f"{data}: the {backend!r} field trains on a dataset folder or transforms file")
-        train = load_dataset(data, "train").to(device)
-        evaluation = _eval_split(data)
-        field = config.setup(scene_bbox=train.scene_bbox)
-        field = field.to(device)
-        log = field.fit(train, eval_dataset=None if evaluation is None else evaluation.to(device))
+    elif _is_mesh_file(data):
+        raise NerfEditError(f"{data}: the {backend!r} field trains on a dataset folder or transforms file")
     plain = {"field": backend, "data": os.path.relpath(data, Path(out).resolve()), "field_config": config}
     if record is not None:
         plain["command"] = record
-    with atomic_dir(out, overwrite) as stage:
+    with atomic_dir(out, overwrite, keep_partial=True) as stage:
+        if target.data == "mesh":
+            field, log = target.from_mesh(SurfaceMesh.load(data), config).to(device), {}
+            field.extract_mesh().save(stage / MESH)
+        else:
+            train = load_dataset(data, "train").to(device)
+            evaluation = _eval_split(data)
+            field = config.setup(scene_bbox=train.scene_bbox).to(device)
+
+            def checkpoint(field: Field, progress: dict) -> None:  # kept as a partial run if interrupted
+                mark_partial(stage, progress)
+                save_field(field, stage / CHECKPOINT, registry)
+                write_config(stage / CONFIG, plain)
+                fault_point("train.checkpoint")
+
+            with checkpoints(checkpoint):
+                log = field.fit(train, eval_dataset=None if evaluation is None else evaluation.to(device))
+            (stage / LOG).write_text(json.dumps(to_plain(log)))
         save_field(field, stage / CHECKPOINT, registry)
         write_config(stage / CONFIG, plain)
-        if log:
-            (stage / LOG).write_text(json.dumps(to_plain(log)))
-        if target.data == "mesh":
-            field.extract_mesh().save(stage / MESH)
+        clear_partial(stage)
     for message in training_warnings(log):
         warnings.warn(f"{out}: {message}", stacklevel=2)
     return open_run(out), log

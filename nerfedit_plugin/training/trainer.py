@@ -7,13 +7,17 @@ plus an optional backend regulariser. Every learning rate decays exponentially w
 whole held-out images) runs every ``eval_every_seconds`` of training time and is excluded from the clock, so the
 log's ``(seconds, psnr)`` pairs are a PSNR-vs-training-time curve. The clock is wall time, or on a busy machine the
 CPU time of the training thread (``TrainerConfig.clock``), which does not grow with other processes' load.
+Inside :func:`checkpoints` the loop hands the field to a callback every ``checkpoint_every_seconds`` (``nerfedit
+train`` keeps the last one as a partial run when it is interrupted).
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -49,6 +53,9 @@ class TrainerConfig:
     foreground_margin: int = 3
     """With alpha in the dataset, draw rays only from pixels within this many pixels of covered ones (alpha > 0):
     farther pixels are known background whose rays cross carved, empty space. −1 draws from all pixels."""
+    checkpoint_every_seconds: float = 60.0
+    """Inside :func:`checkpoints`: hand the field to the checkpoint callback every this many seconds of training
+    (excluded from the clock; 0 disables)."""
     log_every: int = 25
     """Record the batch loss and PSNR every this many steps."""
     seed: int = 0
@@ -61,6 +68,22 @@ class TrainerConfig:
         """The budget of the backends' ``tiny`` presets (tests, smoke runs): ``seconds`` of small batches, no
         intermediate evaluation, no progress bar."""
         return cls(max_seconds=seconds, batch_rays=1024, n_samples=48, eval_every_seconds=0, progress=False)
+
+
+_checkpoint: contextvars.ContextVar[Callable[[Any, dict], None] | None] = contextvars.ContextVar(
+    "checkpoint", default=None
+)
+
+
+@contextlib.contextmanager
+def checkpoints(callback: Callable[[Any, dict], None]) -> Iterator[None]:
+    """Within the block, :func:`train` calls ``callback(field, {"steps": …, "train_seconds": …})`` every
+    ``checkpoint_every_seconds`` of training, whichever backend's ``fit`` runs it."""
+    token = _checkpoint.set(callback)
+    try:
+        yield
+    finally:
+        _checkpoint.reset(token)
 
 
 @torch.no_grad()
@@ -125,6 +148,7 @@ def train(
     field.train()
     clock = _clock(config.clock)
     seconds, step, next_eval = 0.0, 0, config.eval_every_seconds
+    checkpoint, next_checkpoint = _checkpoint.get(), config.checkpoint_every_seconds
     with _Progress(config) as bar:
         while step < config.max_steps and seconds < config.max_seconds:
             start = clock()
@@ -158,6 +182,9 @@ def train(
             if config.eval_every_seconds > 0 and seconds >= next_eval and seconds < config.max_seconds:
                 run_eval(seconds)
                 next_eval += config.eval_every_seconds
+            if checkpoint is not None and 0 < next_checkpoint <= seconds < config.max_seconds:
+                checkpoint(field, {"steps": step, "train_seconds": seconds})
+                next_checkpoint = seconds + config.checkpoint_every_seconds
         if step:
             bar.update(1.0, float(loss.detach()), psnr_from_mse(mse.detach()), None)
     run_eval(seconds)
