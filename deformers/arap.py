@@ -15,7 +15,7 @@ import numpy as np
 
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.spec import EditSpec
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
@@ -33,6 +33,10 @@ class ArapConfig(DeformerConfig):
     tolerance: float = 1e-6
     """Stop when the relative energy decrease per iteration falls below this."""
 
+    def __post_init__(self) -> None:
+        check_option(self, "max_iterations", self.max_iterations, self.max_iterations >= 1, ">= 1")
+        check_option(self, "tolerance", self.tolerance, 0 <= self.tolerance < float("inf"), "a number >= 0")
+
 
 class ArapDeformer(Deformer):
     """Moves the handles of the edit spec and lets the rest of the surface follow as rigidly as possible."""
@@ -41,11 +45,6 @@ class ArapDeformer(Deformer):
     config: ArapConfig
 
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
-        if self.config.max_iterations < 1 or not self.config.tolerance >= 0:
-            raise NerfEditError(
-                f"arap: max_iterations must be >= 1 and tolerance >= 0, got {self.config.max_iterations} and "
-                f"{self.config.tolerance}"
-            )
         self.rest = rest
         self.handles, self.targets = edit.handle_targets(rest.vertices)  # validates the spec before any factorising
         try:

@@ -8,6 +8,7 @@ Every file must have the rest mesh's vertex count and faces, else a NerfEditErro
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -52,3 +53,11 @@ class MeshDeformer(Deformer):
 
     def deform(self) -> np.ndarray:
         return self._frames.copy()
+
+    @classmethod
+    def placed_edit(cls, edit: dict, scale: float, offset: np.ndarray, base_dir: Path, folder: Path) -> dict:
+        """Conformance-kit hook: the deformed meshes, placed into ``folder``."""
+        from nerfedit_plugin.testing.deformers import placed_mesh_files
+
+        placed_mesh_files(edit["deformed"], scale, offset, base_dir, folder)
+        return edit

@@ -119,7 +119,7 @@ def read_config(path: str | os.PathLike, what: str) -> dict:
         raise NerfEditError(f"{path}: no such file ({what})")
     try:
         config = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, ValueError) as exc:  # ValueError: bad UTF-8, an integer of > 4300 digits
         raise NerfEditError(f"{path}: not valid YAML ({exc})") from exc
     if not isinstance(config, dict):
         raise NerfEditError(f"{path}: expected a mapping ({what})")

@@ -21,7 +21,7 @@ from deformers.cage.green import green_coordinates, green_face_terms
 from deformers.cage.mean_value import mean_value_coordinates
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
 from nerfedit_plugin.edit.spec import EditSpec
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
@@ -46,6 +46,12 @@ class CageConfig(DeformerConfig):
     """``"cage": "auto"``: simplify the wrap (quadric edge collapse) to at most this many vertices."""
     chunk_size: int = 64
     """Points per block when evaluating coordinates (memory ≈ 40 · cage faces · chunk_size floats per thread)."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "auto_alpha", self.auto_alpha, self.auto_alpha > 0, "> 0")
+        check_option(self, "auto_offset", self.auto_offset, self.auto_offset > 0, "> 0")
+        check_option(self, "auto_max_vertices", self.auto_max_vertices, self.auto_max_vertices >= 4, ">= 4")
+        check_option(self, "chunk_size", self.chunk_size, self.chunk_size >= 1, ">= 1")
 
 
 def auto_cage(mesh: SurfaceMesh, alpha: float = 5.0, offset: float = 2.0, max_vertices: int = 400) -> SurfaceMesh:
@@ -119,15 +125,6 @@ class CageDeformer(Deformer):
 
     def __init__(self, config: CageConfig) -> None:
         super().__init__(config)
-        rules = {
-            "auto_alpha": (config.auto_alpha > 0, "> 0"),
-            "auto_offset": (config.auto_offset > 0, "> 0"),
-            "auto_max_vertices": (config.auto_max_vertices >= 4, ">= 4"),
-            "chunk_size": (config.chunk_size >= 1, ">= 1"),
-        }
-        for name, (ok, rule) in rules.items():
-            if not ok:
-                raise NerfEditError(f"cage deformer: {name} must be {rule}, got {getattr(config, name)}")
         self.rest_cage: SurfaceMesh | None = None
         self.deformed_cages: np.ndarray | None = None
         self._weights: tuple[np.ndarray, np.ndarray | None] | None = None
@@ -270,6 +267,16 @@ class CageDeformer(Deformer):
     def identity_edit(cls, edit: dict, rest: SurfaceMesh) -> dict | None:
         """The deformed cage is the rest cage; for handle edits the kit's default (zero transforms) applies."""
         return {**edit, "deformed_cage": edit["cage"]} if "deformed_cage" in edit else None
+
+    @classmethod
+    def placed_edit(cls, edit: dict, scale: float, offset: np.ndarray, base_dir: Path, folder: Path) -> dict:
+        """Conformance-kit hook: the cage files, placed into ``folder``."""
+        from nerfedit_plugin.testing.deformers import placed_mesh_files
+
+        for key in ("cage", "deformed_cage"):
+            if key in edit and edit[key] != "auto":
+                placed_mesh_files(edit[key], scale, offset, base_dir, folder)
+        return edit
 
     @classmethod
     def rigid_edit(cls, edit: dict, rest: SurfaceMesh) -> dict:

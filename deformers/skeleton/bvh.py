@@ -249,3 +249,24 @@ def _parse_motion(lines: list[str], motion_at: int, n_channels: int, source: str
             raise NerfEditError(f"{source}:{number}: channel value is NaN or Inf")
         values.append(row)
     return frame_time, np.asarray(values, dtype=np.float64).reshape(n_frames, n_channels)
+
+
+def placed_bvh(text: str, scale: float, offset: np.ndarray) -> str:
+    """The BVH ``text`` of the same clip for a world moved by ``x ↦ scale·x + offset``: every ``OFFSET`` (and
+    ``End Site``) and every position channel value scaled, the root's ``OFFSET`` moved too; rotations unchanged."""
+    out, positions, root, motion = [], [], True, False
+    for line in text.splitlines():
+        words = line.split()
+        if not motion and words[:1] == ["OFFSET"]:
+            value = scale * np.asarray(words[1:4], dtype=np.float64) + (offset if root else 0.0)
+            line, root = line[: line.index("OFFSET")] + "OFFSET " + " ".join(map(repr, value.tolist())), False
+        elif not motion and words[:1] == ["CHANNELS"]:
+            positions += [name.lower().endswith("position") for name in words[2:]]
+        elif words[:1] == ["MOTION"]:
+            motion = True
+        elif motion and words and words[0] not in ("Frames:", "Frame"):
+            values = np.asarray(words, dtype=np.float64)
+            values[np.asarray(positions)] *= scale
+            line = " ".join(map(repr, values.tolist()))
+        out.append(line)
+    return "\n".join(out) + "\n"

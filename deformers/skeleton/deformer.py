@@ -20,12 +20,12 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from deformers.skeleton.bvh import BvhClip, parse_bvh
+from deformers.skeleton.bvh import BvhClip, parse_bvh, placed_bvh
 from deformers.skeleton.heat_weights import bone_heat_weights
 from deformers.skeleton.skinning import Binding, normalize_weights, skin
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.spec import EditSpec, check_keys, vector
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_path
@@ -114,7 +114,7 @@ class Skeleton:
         source = str(path)
         try:
             data = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError) as exc:  # ValueError: bad UTF-8, bad JSON, an integer of > 4300 digits
             raise NerfEditError(f"{source}: cannot parse skeleton JSON ({exc})".replace("\n", " ")) from exc
         check_keys(data, {"joints"}, source, "skeleton")
         joints = data.get("joints")
@@ -224,6 +224,11 @@ class SkeletonConfig(DeformerConfig):
     weight_threshold: float = 1e-3
     """Weights below this are dropped (never a vertex's largest) and rows renormalised to sum 1."""
 
+    def __post_init__(self) -> None:
+        check_option(self, "heat_bones", self.heat_bones, self.heat_bones >= 1, ">= 1")
+        check_option(self, "heat_strength", self.heat_strength, 0 < self.heat_strength < math.inf, "a number > 0")
+        check_option(self, "weight_threshold", self.weight_threshold, 0 <= self.weight_threshold < 1, "in [0, 1)")
+
 
 class SkeletonDeformer(Deformer):
     """Skeleton skinning; defined in space, so it also maps arbitrary points (``deform_points``)."""
@@ -233,12 +238,6 @@ class SkeletonDeformer(Deformer):
 
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
         cfg = self.config
-        if cfg.heat_bones < 1:
-            raise NerfEditError(f"skeleton config: heat_bones must be >= 1, got {cfg.heat_bones}")
-        if cfg.heat_strength <= 0:
-            raise NerfEditError(f"skeleton config: heat_strength must be > 0, got {cfg.heat_strength}")
-        if not 0 <= cfg.weight_threshold < 1:
-            raise NerfEditError(f"skeleton config: weight_threshold must be in [0, 1), got {cfg.weight_threshold}")
         skeleton, clip = load_skeleton(edit.path("skeleton"))
         local_rot, local_trans = self._local_transforms(skeleton, clip, edit)
         if "weights" in edit.extra:
@@ -265,6 +264,31 @@ class SkeletonDeformer(Deformer):
         if not isinstance(edit.get("pose"), dict):
             return None
         return {**edit, "pose": {name: {"translate": [0.0, 0.0, 0.0]} for name in edit["pose"]}}
+
+    @classmethod
+    def placed_edit(cls, edit: dict, scale: float, offset: np.ndarray, base_dir: Path, folder: Path) -> dict:
+        """Conformance-kit hook: the skeleton file (JSON joint heads and tails; BVH offsets and position channels)
+        placed into ``folder``, the weights file copied, pose translations scaled."""
+        source, target = Path(base_dir) / edit["skeleton"], Path(folder) / edit["skeleton"]
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if source.suffix.lower() == ".bvh":
+            target.write_text(placed_bvh(source.read_text(), scale, offset))
+        else:
+            data = json.loads(source.read_text())
+            for joint in data["joints"]:
+                for end in ("head", "tail"):
+                    if end in joint:
+                        joint[end] = (scale * np.asarray(joint[end], dtype=np.float64) + offset).tolist()
+            target.write_text(json.dumps(data))
+        if "weights" in edit:
+            (Path(folder) / edit["weights"]).write_bytes((Path(base_dir) / edit["weights"]).read_bytes())
+        pose = {
+            name: {**item, "translate": (scale * np.asarray(item["translate"], dtype=np.float64)).tolist()}
+            if "translate" in item
+            else item
+            for name, item in edit.get("pose", {}).items()
+        }
+        return {**edit, "pose": pose} if "pose" in edit else edit
 
     @staticmethod
     def _local_transforms(skeleton: Skeleton, clip: BvhClip | None, edit: EditSpec) -> tuple[np.ndarray, np.ndarray]:

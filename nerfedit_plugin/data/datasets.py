@@ -129,7 +129,7 @@ def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transf
     file = transforms_file(path, split)
     try:
         meta = json.loads(file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # ValueError: bad UTF-8, bad JSON, an integer of > 4300 digits
         raise NerfEditError(f"{file}: cannot read JSON ({exc})") from exc
     if not isinstance(meta, dict):
         raise NerfEditError(f"{file}: expected a JSON object at the top level")
@@ -219,7 +219,13 @@ def _image_path(file: Path, frame: dict, where: str) -> Path:
         problem = "missing key" if value is None else f"expected a path, got {value!r}"
         raise NerfEditError(f"{file}: {where}.file_path: {problem}")
     path = file.parent / value
-    if path.is_file() or path.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff"):
+    try:
+        found = path.is_file()
+    except (OSError, ValueError) as exc:  # e.g. a name longer than the file system allows, a NUL byte
+        raise NerfEditError(
+            f"{file}: {where}.file_path: invalid path ({exc.__class__.__name__}: {exc})"[:400]
+        ) from None
+    if found or path.suffix.lower() in (".png", ".jpg", ".jpeg", ".exr", ".tif", ".tiff"):
         return path
     return path.with_name(path.name + ".png")  # Blender lists file paths without extension
 
@@ -228,8 +234,13 @@ def _matrix(file: Path, frame: dict, where: str) -> np.ndarray:
     key = f"{where}.transform_matrix"
     if "transform_matrix" not in frame:
         raise NerfEditError(f"{file}: {key}: missing key")
+    rows = frame["transform_matrix"]
+    if isinstance(rows, list) and any(
+        isinstance(x, bool) for row in rows for x in (row if isinstance(row, list) else [row])
+    ):
+        raise NerfEditError(f"{file}: {key}: expected a 4x4 matrix of numbers, got booleans")
     try:
-        matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
+        matrix = np.asarray(rows, dtype=np.float64)
     except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: an integer beyond float range
         raise NerfEditError(f"{file}: {key}: expected a 4x4 matrix of numbers ({exc})") from exc
     if matrix.shape == (3, 4):

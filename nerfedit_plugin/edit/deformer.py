@@ -99,3 +99,10 @@ class Deformer(abc.ABC):
         """Conformance kit: a variant of ``edit`` that must move ``rest`` rigidly; ``None`` = let the kit derive one
         from ``edit["handles"]`` (every handle given one rigid motion)."""
         return None
+
+    @classmethod
+    def placed_edit(cls, edit: dict, scale: float, offset: np.ndarray, base_dir: Path, folder: Path) -> dict | None:
+        """Conformance kit: ``edit`` for the rest mesh moved by ``x ↦ scale·x + offset``, its own keys placed (files
+        read from ``base_dir`` are written placed into ``folder``; the kit places ``handles`` and keeps ``frames``).
+        ``None`` (the default): the deformer has no keys of its own to place."""
+        return None

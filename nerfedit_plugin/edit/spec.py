@@ -52,7 +52,10 @@ def check_keys(obj: Any, allowed: Iterable[str], source: str, key: str, required
 
 
 def vector(value: Any, source: str, key: str, n: int = 3) -> np.ndarray:
-    """``value`` (a list of ``n`` finite numbers) → (n,) float64, else :func:`spec_error` naming ``key``."""
+    """``value`` (a list of ``n`` finite numbers, not booleans) → (n,) float64, else :func:`spec_error` naming
+    ``key``."""
+    if isinstance(value, (list, tuple)) and any(isinstance(item, bool) for item in value):
+        raise spec_error(source, key, f"expected {n} numbers, got {value!r}")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float range
@@ -181,11 +184,14 @@ class EditSpec:
         return resolved
 
     def _resolve(self, value: Any, key: str) -> Path:
-        """``base_dir / value`` resolved; a name the OS cannot represent (e.g. a NUL byte) is a spec error."""
+        """``base_dir / value`` resolved; a name the OS cannot represent (a NUL byte, longer than the file system
+        allows) is a spec error."""
         try:
-            return (self.base_dir / value).resolve()
+            resolved = (self.base_dir / value).resolve()
+            resolved.is_file()
         except (OSError, ValueError) as exc:
-            raise spec_error(self.source, key, f"invalid file path {value!r} ({exc})") from None
+            raise spec_error(self.source, key, f"invalid file path {value!r:.200} ({exc!s:.200})") from None
+        return resolved
 
     def paths(self, key: str) -> list[Path]:
         """Resolve a list of files or one glob pattern under ``key`` (sorted); at least one must exist."""
@@ -300,6 +306,6 @@ def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("hand
         raise NerfEditError(f"{path}: cannot read ({exc})") from exc
     try:
         data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+    except (ValueError, yaml.YAMLError) as exc:  # ValueError: also an integer of more than 4300 digits
         raise NerfEditError(f"{path}: cannot parse ({exc})".replace("\n", " ")) from exc
     return parse_edit_spec(data, allowed_keys, str(path), path.parent)

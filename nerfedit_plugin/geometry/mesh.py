@@ -134,7 +134,15 @@ class SurfaceMesh:
             raise NerfEditError(f"{path}: {exc}") from exc
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write atomically; format from the suffix."""
+        """Write atomically; format from the suffix. PLY files hold the vertices in float64 (Open3D's writer:
+        trimesh's is float32, which moves a vertex 1e5 from the origin by up to 4e-3)."""
         path = Path(path)
+        kind = path.suffix.lstrip(".").lower()
         with atomic_path(path) as tmp:
-            self.to_trimesh().export(tmp, file_type=path.suffix.lstrip(".").lower())
+            if kind != "ply":
+                self.to_trimesh().export(tmp, file_type=kind)
+            else:
+                import open3d as o3d
+
+                if not o3d.io.write_triangle_mesh(tmp, self.to_open3d(), write_ascii=False, write_vertex_normals=False):
+                    raise NerfEditError(f"{path}: Open3D could not write the mesh")

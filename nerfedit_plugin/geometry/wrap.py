@@ -26,15 +26,22 @@ def wrap_and_decimate(
     or with ``percent`` in percent of the bounding-box diagonal); then, when the wrap has more than ``max_faces``
     faces, quadric edge collapse (topology kept, normals too with ``preserve_normal``) down to ``max_faces``, or when
     it has more than ``max_vertices`` vertices, down to ``2 · max_vertices − 4`` faces (a closed genus-0 mesh with
-    that many vertices). ``clock`` times the stages ``wrap`` and ``decimate``.
+    that many vertices). ``clock`` times the stages ``wrap`` and ``decimate``. Both run on the input moved to its
+    bounding-box centre and scaled to a unit diagonal (and the result is mapped back), so the wrap of a scaled or
+    moved input is the scaled or moved wrap: MeshLab's meshes are float32 and its tolerances absolute.
     """
     import pymeshlab
 
     clock = clock or Stopwatch()
-    value = pymeshlab.PercentageValue if percent else pymeshlab.PureValue
+    vertices = np.asarray(vertices, dtype=np.float64)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    centre, size = (low + high) / 2, float(np.linalg.norm(high - low)) or 1.0
+    if not percent:
+        alpha, offset = alpha / size, offset / size
     meshset = pymeshlab.MeshSet()
-    meshset.add_mesh(pymeshlab.Mesh(vertices, faces.astype(np.int32)))
+    meshset.add_mesh(pymeshlab.Mesh((vertices - centre) / size, faces.astype(np.int32)))
     with clock.stage("wrap"):
+        value = pymeshlab.PercentageValue if percent else pymeshlab.PureValue
         meshset.generate_alpha_wrap(alpha=value(alpha), offset=value(offset))
     with clock.stage("decimate"):
         wrapped = meshset.current_mesh()
@@ -49,4 +56,4 @@ def wrap_and_decimate(
                 targetfacenum=target, preservetopology=True, preservenormal=preserve_normal
             )
     wrapped = meshset.current_mesh()
-    return SurfaceMesh(wrapped.vertex_matrix(), wrapped.face_matrix())
+    return SurfaceMesh(wrapped.vertex_matrix() * size + centre, wrapped.face_matrix())

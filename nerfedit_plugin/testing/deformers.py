@@ -64,6 +64,17 @@ RIGID_AXIS = (1.0, 2.0, 0.5)
 RIGID_DEGREES = 35.0
 RIGID_SHIFT = (0.2, -0.1, 0.15)
 
+#: placements of :func:`check_placement`: name → (scale, offset in rest bbox diagonals along ``PLACEMENT_DIRECTION``);
+#: ``x ↦ scale·x + offset``. The scales are powers of two (about 1e-4 and 1e4), so the scaled mesh is exactly the
+#: mesh scaled, not a rounded copy: set-up steps that are discontinuous in their input (an alpha wrap of a symmetric
+#: mesh changes under 1-ulp perturbations) then still give the scaled result.
+PLACEMENTS = {
+    "scaled by 2^-13": (2.0**-13, 0.0),
+    "scaled by 2^13": (2.0**13, 0.0),
+    "moved 1e5 diagonals away": (1.0, 1e5),
+}
+PLACEMENT_DIRECTION = (0.6, -0.48, 0.64)
+
 
 # ---- defaults --------------------------------------------------------------------------------------------------
 def default_mesh() -> SurfaceMesh:
@@ -157,6 +168,68 @@ def _frames(config: Any, rest: SurfaceMesh, edit: dict, base_dir: Path | None, w
         f"{name}: bind()/deform() modified the rest mesh in place"
     )
     return out
+
+
+# ---- placed edits (scale and position) --------------------------------------------------------------------------
+def place_handles(edit: dict, scale: float, offset: np.ndarray) -> dict:
+    """``edit`` for the rest mesh moved by ``x ↦ scale·x + offset``: handle box corners, sphere centres and rotation
+    centres are moved, radii and translations scaled; indices, axes, angles and scale factors stay."""
+    out = copy.deepcopy(edit)
+
+    def point(value: Any) -> list:
+        return (scale * np.asarray(value, dtype=np.float64) + offset).tolist()
+
+    for handle in out.get("handles", []):
+        select = handle.get("select", {})
+        if "box" in select:
+            select["box"] = {key: point(select["box"][key]) for key in ("min", "max")}
+        if "sphere" in select:
+            select["sphere"] = {
+                "center": point(select["sphere"]["center"]),
+                "radius": scale * select["sphere"]["radius"],
+            }
+        transform = handle.get("transform", {})
+        if "translate" in transform:
+            transform["translate"] = (scale * np.asarray(transform["translate"], dtype=np.float64)).tolist()
+        if "center" in transform.get("rotate", {}):
+            transform["rotate"]["center"] = point(transform["rotate"]["center"])
+    return out
+
+
+def placed_edit(config: Any, edit: dict, scale: float, offset: np.ndarray, base_dir, folder: Path) -> dict:
+    """``edit`` for the rest mesh moved by ``x ↦ scale·x + offset``: the Deformer's ``placed_edit`` hook places its
+    own keys, then :func:`place_handles` the handles. Keys other than ``handles``/``frames`` without the hook are a
+    usage error (``ValueError``)."""
+    target = config._target
+    found = target.placed_edit(copy.deepcopy(edit), scale, offset, Path(base_dir or "."), folder)
+    if found is None:
+        own = sorted(set(edit) - {"handles", "frames"})
+        if own:
+            raise ValueError(
+                f"{_name(config)}: the kit cannot place the edit's keys {own} ({target.__name__}.placed_edit returned "
+                "None): implement the hook or pass skip=('placement',)"
+            )
+        found = copy.deepcopy(edit)
+    return place_handles(found, scale, offset)
+
+
+def placed_mesh(rest: SurfaceMesh, scale: float, offset: np.ndarray) -> SurfaceMesh:
+    """``rest`` moved by ``x ↦ scale·x + offset`` (faces and colours kept)."""
+    colors = None if rest.vertex_colors is None else rest.vertex_colors.copy()
+    return SurfaceMesh(scale * rest.vertices + offset, rest.faces.copy(), colors)
+
+
+def placed_mesh_files(value: Any, scale: float, offset: np.ndarray, base_dir: Path, folder: Path) -> Any:
+    """For ``placed_edit`` hooks: the mesh files a spec value names (a file, a glob pattern or a list, relative to
+    ``base_dir``) written moved by ``x ↦ scale·x + offset`` into ``folder`` under the same relative names; returns
+    ``value`` (it names the placed files relative to ``folder``)."""
+    for name in [value] if isinstance(value, str) else value:
+        pattern = any(ch in str(name) for ch in "*?[")
+        for path in sorted(Path(base_dir).glob(str(name))) if pattern else [Path(base_dir) / name]:
+            target = Path(folder) / path.relative_to(base_dir)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            placed_mesh(SurfaceMesh.load(path), scale, offset).save(target)
+    return value
 
 
 # ---- identity / rigid variants -----------------------------------------------------------------------------------
@@ -363,6 +436,54 @@ def check_rigid(
     )
 
 
+def check_placement(
+    config: Any,
+    rest: SurfaceMesh | None = None,
+    edit: dict | None = None,
+    *,
+    base_dir=None,
+    identity_edit: dict | None = None,
+    rigid_edit: dict | None = None,
+    tol: float = 1e-6,
+    rigid_tol: float = 1e-4,
+    skip: Iterable[str] = (),
+) -> None:
+    """Scale and position do not matter: for the rest mesh (and the edit) scaled by about 1e-4 and 1e4 and moved 1e5
+    bbox diagonals from the origin (:data:`PLACEMENTS`), the identity and rigid checks hold; scaled, the edit gives
+    the scaled frames of the edit (within ``rigid_tol`` × the placed bbox diagonal). (A move rounds every coordinate,
+    so it is held to identity and rigidity only.) The identity and rigid checks named in ``skip`` are left out here
+    too."""
+    import tempfile
+
+    rest, edit = _resolve(config, rest, edit)
+    frames = _frames(config, rest, edit, base_dir, "edit")
+    direction = np.asarray(PLACEMENT_DIRECTION) / np.linalg.norm(PLACEMENT_DIRECTION)
+    for where, (scale, away) in PLACEMENTS.items():
+        offset = away * rest.bbox_diagonal * direction
+        moved = placed_mesh(rest, scale, offset)
+        with tempfile.TemporaryDirectory(prefix="nerfedit-kit-") as folder:
+            folder = Path(folder)
+            spec, identity, rigid = (
+                None if e is None else placed_edit(config, e, scale, offset, base_dir, folder)
+                for e in (edit, identity_edit, rigid_edit)
+            )
+            try:
+                if "identity" not in skip:
+                    check_identity(config, moved, spec, base_dir=folder, identity_edit=identity, tol=tol)
+                if "rigid" not in skip:
+                    check_rigid(config, moved, spec, base_dir=folder, rigid_edit=rigid, rigid_tol=rigid_tol)
+            except AssertionError as exc:
+                raise AssertionError(f"{exc} [rest mesh {where}]") from None
+            if away:
+                continue
+            out = _frames(config, moved, spec, folder, f"edit {where}")
+            err = np.linalg.norm(out - (scale * frames + offset), axis=2).max()
+            assert err <= rigid_tol * moved.bbox_diagonal, (
+                f"{_name(config)}: the edit of the rest mesh {where} differs from the placed edit of the rest mesh by "
+                f"{err:.3g} (> {rigid_tol:g} × bbox {moved.bbox_diagonal:.3g})"
+            )
+
+
 def _edge_to_pair_ratio(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Median edge length over the median distance between random vertex pairs (small ⇔ edges join neighbours)."""
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
@@ -494,6 +615,7 @@ CHECKS: dict[str, Callable] = {
     "vertex_order": check_vertex_order,
     "malformed": check_malformed,
     "points": check_deform_points,
+    "placement": check_placement,
 }
 
 
@@ -504,6 +626,7 @@ OPTIONS: dict[str, tuple[str, ...]] = {
     "rigid": ("rigid_edit", "rigid_tol"),
     "malformed": ("bad_edits",),
     "points": ("tol",),
+    "placement": ("identity_edit", "rigid_edit", "tol", "rigid_tol", "skip"),
 }
 
 
@@ -529,8 +652,10 @@ def run_check(
     bad_edits: Iterable[dict] = (),
     tol: float = 1e-6,
     rigid_tol: float = 1e-4,
+    skip: Iterable[str] = (),
 ) -> None:
-    """Run the check ``name`` of :data:`CHECKS` with :func:`check_deformer`'s arguments (it takes those it uses)."""
+    """Run the check ``name`` of :data:`CHECKS` with :func:`check_deformer`'s arguments (it takes those it uses;
+    ``skip`` tells ``placement`` which checks it must not repeat)."""
     if name == "config":
         CHECKS[name](config)
         return
@@ -540,6 +665,7 @@ def run_check(
         "bad_edits": list(bad_edits),
         "tol": tol,
         "rigid_tol": rigid_tol,
+        "skip": tuple(skip),
     }
     CHECKS[name](config, rest, edit, base_dir=base_dir, **{key: given[key] for key in OPTIONS.get(name, ())})
 
@@ -570,6 +696,7 @@ def deformer_checks(
         "bad_edits": tuple(bad_edits),
         "tol": tol,
         "rigid_tol": rigid_tol,
+        "skip": tuple(skip),
     }
     return [(name, functools.partial(run_check, name, config, **bound)) for name in select_checks(CHECKS, skip)]
 

@@ -45,6 +45,13 @@ CASES = [
     (EDIT + ["--lift-options.constraint-weight", "-5"], "--lift-options.constraint-weight: must be a positive"),
     (EDIT + ["--proxy.cage-faces", "2"], "--proxy.cage-faces: must be >= 8, got 2"),
     (EDIT + ["--proxy.min-margin", "nan"], "--proxy.min-margin: must be in [0, 1)"),
+    (EDIT + ["--deformer-options.tolerance", "nan"], "--deformer-options.tolerance: must be a number >= 0"),
+    (EDIT + ["--deformer", "cage", "--deformer-options.auto-alpha", "-1"], "--deformer-options.auto-alpha: must be >"),
+    (EDIT + ["--deformer", "skeleton", "--deformer-options.heat-bones", "0"], "--deformer-options.heat-bones: must be"),
+    (
+        EDIT + ["--deformer", "skeleton", "--deformer-options.weight-threshold", "1"],
+        "--deformer-options.weight-threshold: must be in [0, 1)",
+    ),
     (["render", "--run", "r", "--cameras", "c", "--out", "o", "--supersample", "0"], "--supersample: must be"),
     (["render", "--run", "r", "--cameras", "c", "--out", "o", "--frame", "-1"], "--frame: must be >= 0"),
     (["extract", "--run", "r", "--resolution", "1"], "--resolution: must be an integer >= 2"),

@@ -47,9 +47,10 @@ BAD_VALUES = {
         [[1, 0, 0, math.inf], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
         [[1, 0, 0, HUGE], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
         [[1, 0, 0, "x"], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+        [[True, 0, 0, 0], [0, True, 0, 0], [0, 0, True, 0], [0, 0, 0, True]],
         {"rows": 4},
     ],
-    "file_path": [None, 3, "", [], {}, True],
+    "file_path": [None, 3, "", [], {}, True, "x" * 5000],
     "frames": [[], {}, None, "frames", 1],
     "frame": [None, 1, "x", []],
     "camera_model": ["OPENCV_FISHEYE", "EQUIRECTANGULAR", 3],
@@ -204,3 +205,21 @@ def test_garbled_transforms_never_crash(workdir, fmt, data):
         assert str(path) in str(exc) or str(path.parent) in str(exc), str(exc)
     else:
         assert not truncated, "a truncated JSON file parsed"
+
+
+GOOD = {"camera_angle_x": 0.7, "frames": [{"file_path": "images/r_0", "transform_matrix": np.eye(4).tolist()}]}
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (json.dumps(GOOD).replace('"camera_angle_x": 0.7', '"camera_angle_x": ' + "9" * 5000), "cannot read JSON"),
+        (json.dumps(GOOD).replace("images/r_0", "x" * 5000), r"frames\[0\]\.file_path: invalid path"),
+        (json.dumps(GOOD).replace("1.0", "true"), r"frames\[0\]\.transform_matrix: .* booleans"),
+    ],
+    ids=["an integer of 5000 digits", "a file name too long for the file system", "booleans in the matrix"],
+)
+def test_edge_values_name_the_file_and_key(workdir, text, message):
+    file = write(workdir, text.encode(), "transforms_train.json")
+    with pytest.raises(NerfEditError, match=rf"^{file}: {message}"):
+        read_transforms(file)

@@ -211,8 +211,8 @@ def test_bad_input_is_rejected_naming_file_and_problem(files, tmp_path):
 @pytest.mark.parametrize("option", [{"chunk_size": 0}, {"auto_alpha": 0.0}, {"auto_max_vertices": 3}])
 def test_bad_options_are_rejected(option):
     ((name, value),) = option.items()
-    with pytest.raises(NerfEditError, match=rf"cage deformer: {name} must be .*, got {value}"):
-        CageConfig(**option).setup()
+    with pytest.raises(NerfEditError, match=rf"{name}: must be .*, got {value}"):
+        CageConfig(**option)
 
 
 @pytest.mark.parametrize("coordinates", ["mvc", "green"])

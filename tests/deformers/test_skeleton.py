@@ -308,7 +308,7 @@ def test_missing_pose_bad_bvh_and_bad_weights(folder):
     (folder / "junk.npy").write_text("not numpy")
     with pytest.raises(NerfEditError, match="junk.npy: cannot read weights"):
         bind(folder, {**pose(upper={"translate": [0, 0, 1]}), "weights": "junk.npy"})
-    with pytest.raises(NerfEditError, match="heat_bones must be >= 1"):
+    with pytest.raises(NerfEditError, match="heat_bones: must be >= 1"):
         bind(folder, pose(upper={"translate": [0, 0, 1]}), heat_bones=0)
 
 

@@ -135,6 +135,10 @@ class Lenient(FollowDeformer):
 
     spec_keys = frozenset({"handles", "amount"})
 
+    @classmethod
+    def placed_edit(cls, edit, scale, offset, base_dir, folder):
+        return edit  # amount is never read
+
 
 class WrongError(Lenient):
     def bind(self, rest, edit):
@@ -153,6 +157,21 @@ class BadPoints(FollowDeformer):
         return np.stack([FollowDeformer.deform_points(self, self.rest, f) for f in range(len(self.times))])
 
 
+class Snapping(FollowDeformer):
+    """Rounds its output to an absolute grid of 1e-6: unseen on a mesh 2 units across, wrong on one 3e-4 across."""
+
+    def deform(self):
+        return np.round(super().deform(), 6)
+
+
+class Float32Sums(FollowDeformer):
+    """Adds its displacements in float32: unseen near the origin, wrong 1e5 diagonals away."""
+
+    def deform(self):
+        out = super().deform()
+        return (self.rest.astype(np.float32) + (out - self.rest).astype(np.float32)).astype(np.float64)
+
+
 BROKEN = [
     (WrongShape, "output", r"returned shape \(162, 3\), expected \(2, 162, 3\)"),
     (Float32, "output", r"dtype float32, expected float64"),
@@ -166,6 +185,8 @@ BROKEN = [
     (Lenient, "malformed", r"NaN at amount: accepted"),
     (WrongError, "malformed", r"NaN at amount: raised ValueError\('amount is NaN'\), expected NerfEditError"),
     (BadPoints, "points", r"deform_points\(rest\) differs from deform\(\)"),
+    (Snapping, "placement", r"identity edit moved vertices .* \[rest mesh scaled by 2\^-13\]"),
+    (Float32Sums, "placement", r"identity edit moved vertices .* \[rest mesh moved 1e5 diagonals away\]"),
 ]
 
 
@@ -228,6 +249,10 @@ class NoHooks(Deformer):
     def deform(self):
         return np.stack([self.rest + [t * self.amount, 0.0, 0.0] for t in self.times])
 
+    @classmethod
+    def placed_edit(cls, edit, scale, offset, base_dir, folder):
+        return {**edit, "amount": scale * edit["amount"]}
+
 
 class Shift(NoHooks):
     """The same plugin with ``identity_edit`` / ``rigid_edit`` hooks giving its variants."""
@@ -238,7 +263,7 @@ class Shift(NoHooks):
 
     @classmethod
     def rigid_edit(cls, edit, rest):
-        return {**edit, "amount": 0.5}
+        return {**edit, "amount": 0.2 * rest.bbox_diagonal}
 
 
 def test_hooks_and_explicit_variants_for_plugins_without_handles():
@@ -333,7 +358,13 @@ def test_public_api_names():
     assert nerfedit_plugin.check_deformer is check_deformer and nerfedit_plugin.check_field is field_kit.check_field
 
 
-EXACT = [b for b in BROKEN if b[0] in (Noisy, IgnoresIdentity, Shearing, Lenient, WrongError, BadPoints)]
+EXACT = [
+    b
+    for b in BROKEN
+    if b[0] in (Noisy, IgnoresIdentity, Shearing, Lenient, WrongError, BadPoints, Snapping, Float32Sums)
+]
+#: checks whose failure the placement check repeats (it runs identity and rigid on the placed mesh)
+REPEATED = {"identity", "rigid", "deterministic"}
 
 
 @pytest.mark.parametrize("deformer, check, message", EXACT, ids=[b[0].__name__ for b in EXACT])
@@ -345,7 +376,7 @@ def test_broken_deformer_fails_exactly_its_case(deformer, check, message):
             run()
         except AssertionError as exc:
             failed[name] = str(exc)
-    assert list(failed) == [check], failed
+    assert list(failed) == [check] + (["placement"] if check in REPEATED else []), failed
     assert re.search(message, failed[check])
 
 
@@ -406,7 +437,7 @@ def test_pytest_reports_the_failing_property_by_name(pytester):
         )
     )
     result = pytester.runpytest("-q", "-p", "no:cacheprovider")
-    result.assert_outcomes(passed=len(CHECKS) - 2, failed=1)
+    result.assert_outcomes(passed=len(CHECKS) - 3, failed=2)  # identity, and placement repeating it
     result.stdout.fnmatch_lines(
         [
             "*_ test_conformance[[]BrokenConfig-identity[]] _*",

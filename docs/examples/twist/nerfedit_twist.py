@@ -61,3 +61,11 @@ class TwistDeformer(Deformer):
 
     def deform(self):
         return np.stack([self.deform_points(self.rest, f) for f in range(len(self.times))])
+
+    @classmethod
+    def placed_edit(cls, edit, scale, offset, base_dir, folder):
+        """Conformance-kit hook: the twist's centre is a point and moves with the mesh; axis and angle stay."""
+        twist = dict(edit["twist"])
+        if "center" in twist:
+            twist["center"] = (scale * np.asarray(twist["center"], dtype=np.float64) + offset).tolist()
+        return {**edit, "twist": twist}
