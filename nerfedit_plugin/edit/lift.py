@@ -2,11 +2,13 @@
 
 ``Lift(proxy, rest, method)(frames (F,V,3) float64) → (proxy frames (F,N,3) float64, one FrameReport per frame)``.
 Methods (:data:`LiftMethod`): ``tet-arap`` (default: volumetric ARAP, per-tet rotations, with the barycentric
-constraints ``A t' = v'`` as the stiff penalty ``E_ARAP(t') + w‖A t' − v'‖²``, warm-started frame to frame),
+constraints ``A t' = v'`` as the stiff penalty ``E_ARAP(t') + w‖A t' − v'‖²``, warm-started frame to frame;
+then, if that folds a tet, the inversion-free re-lift of :mod:`nerfedit_plugin.geometry.injective`),
 ``closest-point`` and ``knn3`` (the paper's baselines, evaluated at the proxy vertices), ``tet-edit`` (the spec's
-handles applied to the proxy, volumetric ARAP: the paper's ablation) and ``direct`` (the deformer's
+handles applied to the proxy, volumetric ARAP: the paper's ablation; re-lifted inversion-free, with soft handles,
+when it folds) and ``direct`` (the deformer's
 ``deform_points`` at the proxy vertices). Every lift reports, per frame, the residual ``|A t' − v'|`` and the
-inverted / degenerate tets of T'. Why a penalty: docs/method.md, "The lift".
+inverted / degenerate tets of T'. Why a penalty, why the re-lift: docs/method.md, "The lift".
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import time
 from typing import Literal
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from nerfedit_plugin.edit.deformer import Deformer
@@ -24,6 +27,7 @@ from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ArapSolver
+from nerfedit_plugin.geometry.injective import InjectiveSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
@@ -40,12 +44,24 @@ class LiftConfig:
     """Upper bound on ARAP local/global iterations per frame."""
     tolerance: float = 1e-6
     """Stop when the relative energy decrease falls below this."""
+    injective: bool = True
+    """When the ARAP lift of a frame inverts or flattens a tet, lift that frame again with the inversion-free solver
+    (symmetric Dirichlet energy, flip-free Newton steps) from the last inversion-free state (the previous frame or the
+    rest proxy). False keeps the ARAP lift as it is, folds included."""
+    injective_max_iterations: int = 50
+    """Upper bound on the Newton iterations of an inversion-free re-lift."""
+    injective_tolerance: float = 1e-4
+    """Stop an inversion-free re-lift when an iteration lowers its energy by less than this fraction."""
 
     def __post_init__(self) -> None:
         weight, iterations, tolerance = self.constraint_weight, self.max_iterations, self.tolerance
         check_option(self, "constraint_weight", weight, 0 < weight < np.inf, "a positive number")
         check_option(self, "max_iterations", iterations, iterations >= 1, "a positive integer")
         check_option(self, "tolerance", tolerance, 0 <= tolerance < np.inf, "a number >= 0")
+        check_option(self, "injective", self.injective, isinstance(self.injective, bool), "true or false")
+        newton, stop = self.injective_max_iterations, self.injective_tolerance
+        check_option(self, "injective_max_iterations", newton, newton >= 1, "a positive integer")
+        check_option(self, "injective_tolerance", stop, 0 <= stop < np.inf, "a number >= 0")
 
 
 @dataclasses.dataclass
@@ -121,6 +137,12 @@ class Lift:
                 raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
             fixed, self.handle_targets = edit.handle_targets(proxy.vertices)
             self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)
+        self.injective: InjectiveSolver | None = None  # built on the first fold
+        if method == "tet-edit":
+            rows = np.arange(len(fixed))
+            self._soft = sp.csr_matrix((np.ones(len(fixed)), (rows, fixed)), shape=(len(fixed), len(proxy.vertices)))
+        elif method == "tet-arap":
+            self._soft = self.embedding
 
     def frame(self, index: int, surface: np.ndarray, previous: np.ndarray | None) -> tuple[np.ndarray, int]:
         """Frame ``index``: surface (V,3) float64, previous proxy frame (N,3) float64 or None (warm start) →
@@ -134,12 +156,39 @@ class Lift:
             return np.asarray(self.deformer.deform_points(proxy.vertices, index), dtype=np.float64), 0
         kwargs = dict(max_iterations=self.config.max_iterations, tolerance=self.config.tolerance)
         if method == "tet-edit":
-            result = self.solver.solve(fixed_positions=self.handle_targets[index], initial=previous, **kwargs)
+            targets = self.handle_targets[index]
+            result = self.solver.solve(fixed_positions=targets, initial=previous, **kwargs)
         else:
-            if previous is None:
-                previous = proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices)
-            result = self.solver.solve(constraint_targets=surface, initial=previous, **kwargs)
-        return result.vertices, result.iterations
+            targets = surface
+            initial = previous
+            if initial is None:
+                initial = proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices)
+            result = self.solver.solve(constraint_targets=surface, initial=initial, **kwargs)
+        if not self.config.injective or self.folds(result.vertices) == 0:
+            return result.vertices, result.iterations
+        return self.unfolded(targets, previous, result.iterations)
+
+    def folds(self, deformed: np.ndarray) -> int:
+        """deformed proxy (N,3) float64 → the number of its tets that are inverted or degenerate (signed volume at
+        most 1e-9 × the mean rest volume: the report's threshold)."""
+        tiny = 1e-9 * np.abs(self.rest_volumes).mean()
+        return int(np.count_nonzero(tet_signed_volumes(deformed, self.proxy.tets) <= tiny))
+
+    def unfolded(self, targets: np.ndarray, previous: np.ndarray | None, iterations: int) -> tuple[np.ndarray, int]:
+        """The inversion-free lift of a frame whose ARAP lift folds: targets (m,3) float64 (surface vertices for
+        tet-arap, handle vertices for tet-edit, both soft with the ARAP lift's weight), started from ``previous``
+        (N,3) float64 if it folds nothing, else from the rest proxy → (proxy vertices (N,3) float64, ARAP plus Newton
+        iteration count)."""
+        if self.injective is None:
+            proxy = self.proxy
+            weight = self.config.constraint_weight
+            self.injective = InjectiveSolver(proxy.vertices, proxy.tets, self._soft, weight)
+        start = previous if previous is not None and self.folds(previous) == 0 else self.proxy.vertices
+        config = self.config
+        result = self.injective.solve(
+            start, targets, max_iterations=config.injective_max_iterations, tolerance=config.injective_tolerance
+        )
+        return result.vertices, iterations + result.iterations
 
     def report(self, deformed: np.ndarray, surface: np.ndarray, iterations: int, seconds: float) -> FrameReport:
         """deformed proxy (N,3) float64, surface (V,3) float64 → the frame's :class:`FrameReport` (residual

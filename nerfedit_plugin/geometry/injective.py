@@ -1,0 +1,205 @@
+"""Injective (flip-free) deformation of a tet mesh: symmetric Dirichlet energy, projected Newton, maximal safe step.
+
+:class:`InjectiveSolver` minimises, over deformed positions ``X (N,3)`` of a positively oriented tet mesh (rest
+``P``, tet volumes ``|t|``, deformation gradients ``J_t = D_t(X) D_t(P)⁻¹`` of the edge matrices
+``D_t = [x₁ − x₀, x₂ − x₀, x₃ − x₀]``),
+
+``E(X) = ¼ Σ_t |t| (‖J_t‖²_F + ‖J_t⁻¹‖²_F − 6) + w_c ‖C X − T‖²``  (soft linear constraints ``C (m,N)``),
+
+the symmetric Dirichlet energy (the energy of SLIM, Rabinovich et al. 2017), which is ``+∞`` on any flat or
+inverted tet and equals the ARAP energy to second order at a rotation (hence the ¼ and the same dimensionless
+constraint weight ``w_c = w · mean diag(L)`` as :class:`~nerfedit_plugin.geometry.arap.ArapSolver`).
+Each iteration is a projected Newton step (Teran et al. 2005: the per-tet 9×9 Hessian in ``J`` clamped to positive
+eigenvalues, so the assembled system is positive definite) followed by a backtracking (Armijo) line search that
+starts at ``0.9 ×`` the maximal flip-free step of Smith & Schaefer 2015: the smallest ``α > 0`` where a tet's
+``det(D_t(X) + α D_t(ΔX)) = 0``, i.e. ``α = −1/λ`` for the real negative eigenvalues ``λ`` of
+``D_t(X)⁻¹ D_t(ΔX)``. Started from positions with every tet positively oriented, every iterate stays so: the map is
+injective on each tet and keeps the orientation of all of them.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.arap import _Factor, cotangent_weights
+from nerfedit_plugin.geometry.tets import tet_signed_volumes
+
+#: fraction of the maximal flip-free step a line search starts from (SLIM: 0.8)
+SAFE_STEP = 0.9
+#: Armijo sufficient-decrease constant of the line search
+ARMIJO = 1e-4
+#: halvings of the step before the line search gives up (no decrease left at this precision)
+MAX_HALVINGS = 40
+#: smallest eigenvalue kept in a projected per-tet Hessian, relative to the tet's volume
+EIGEN_FLOOR = 1e-8
+#: ridge added to the assembled Newton matrix, relative to its mean diagonal (keeps loose parts solvable)
+RIDGE = 1e-10
+
+
+class InjectiveResult(NamedTuple):
+    """``vertices (N,3) float64`` (every tet positively oriented); ``iterations`` done; ``energies[k]`` = E after k
+    iterations (decreasing); ``converged`` = the relative decrease fell below the tolerance."""
+
+    vertices: np.ndarray
+    iterations: int
+    energies: list[float]
+    converged: bool
+
+
+def flip_free_step(edges: np.ndarray, directions: np.ndarray) -> float:
+    """edges (K,3,3) float64 edge matrices ``D_t`` (columns ``x_k − x_0``) with ``det > 0``, directions (K,3,3)
+    float64 their change ``D_t(ΔX)`` → the largest ``α`` (``inf`` if none) such that every
+    ``det(D_t + a D_t(ΔX)) > 0`` for ``0 ≤ a < α`` (Smith & Schaefer 2015): ``det(D + αΔ) = det D · det(I + α D⁻¹Δ)``
+    vanishes at ``α = −1/λ`` for the eigenvalues λ of ``D⁻¹Δ``."""
+    eigenvalues = np.linalg.eigvals(np.linalg.solve(edges, directions))
+    real = np.abs(eigenvalues.imag) <= 1e-12 * np.maximum(np.abs(eigenvalues.real), 1e-300)
+    shrinking = real & (eigenvalues.real < 0)
+    if not shrinking.any():
+        return np.inf
+    return float((-1.0 / eigenvalues.real[shrinking]).min())
+
+
+class InjectiveSolver:
+    """Flip-free minimiser of the symmetric Dirichlet energy plus soft linear constraints on a tet mesh (see the
+    module docstring). ``vertices (N,3) float64`` rest (every tet positively oriented), ``tets (K,4) int64``,
+    ``constraints`` a sparse ``C (m,N)``, ``constraint_weight`` the dimensionless ``w`` (``w_c = w · mean diag L``,
+    ``L`` the cotangent Laplacian: as in ArapSolver). The sparsity pattern of the Newton matrix is built once; each
+    iteration assembles it, factors it (a sparse Cholesky) and solves once."""
+
+    def __init__(self, vertices: np.ndarray, tets: np.ndarray, constraints: sp.spmatrix, constraint_weight: float):
+        rest = np.asarray(vertices, dtype=np.float64)
+        tets = np.asarray(tets, dtype=np.int64)
+        volumes = tet_signed_volumes(rest, tets)
+        if not (volumes > 0).all():
+            raise NerfEditError("injective solver: every rest tet must be positively oriented with a positive volume")
+        self.n_vertices, self.tets, self.volumes = len(rest), tets, volumes
+        self.origin = rest.mean(0)
+        self.inverse_rest = np.linalg.inv(self.edge_matrices(rest))  # D_t(P)⁻¹ (K,3,3)
+        # dJ/dx: J = Σ_c x_c ⊗ b_c with b_0 = −Σ rows of D(P)⁻¹, b_c = row c−1 (K,4,3)
+        self.gradient_map = np.concatenate([-self.inverse_rest.sum(1, keepdims=True), self.inverse_rest], axis=1)
+        weights = cotangent_weights(rest, tets)
+        diagonal = np.zeros(len(rest))
+        for column, (i, j) in enumerate(((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))):
+            np.add.at(diagonal, tets[:, i], weights[:, column])
+            np.add.at(diagonal, tets[:, j], weights[:, column])
+        self.constraints = sp.csr_matrix(constraints, dtype=np.float64)
+        self.constraint_weight = float(constraint_weight) * float(diagonal[np.unique(tets)].mean())
+        # Newton matrix pattern over DOFs 3·vertex + axis: every tet's 12×12 block plus 2 w_c CᵀC ⊗ I₃
+        dofs = (3 * tets[:, :, None] + np.arange(3)).reshape(-1, 12)
+        rows = np.repeat(dofs, 12, axis=1).ravel()
+        cols = np.tile(dofs, (1, 12)).ravel()
+        gram = (self.constraints.T @ self.constraints).tocoo()
+        c_rows = (3 * gram.row[:, None] + np.arange(3)).ravel()
+        c_cols = (3 * gram.col[:, None] + np.arange(3)).ravel()
+        size = 3 * len(rest)
+        keys = np.concatenate([rows * size + cols, c_rows * size + c_cols, np.arange(size) * (size + 1)])
+        unique, inverse = np.unique(keys, return_inverse=True)
+        self._slots = inverse.ravel()
+        self._constant = np.concatenate(
+            [np.zeros(len(rows)), 2.0 * self.constraint_weight * np.repeat(gram.data, 3), np.zeros(size)]
+        )
+        rows = unique // size  # sorted keys: row-major, so the pattern is CSR as it stands
+        self._indptr = np.searchsorted(rows, np.arange(size + 1)).astype(np.int32)
+        self._indices = (unique % size).astype(np.int32)
+        self._diagonal_slots = self._slots[-size:]
+
+    def edge_matrices(self, positions: np.ndarray) -> np.ndarray:
+        """positions (N,3) float64 → (K,3,3) float64 ``D_t`` (column k = ``x_{k+1} − x_0``)."""
+        corners = positions[self.tets]
+        return (corners[:, 1:] - corners[:, :1]).transpose(0, 2, 1)
+
+    def jacobians(self, positions: np.ndarray) -> np.ndarray:
+        """positions (N,3) float64 → (K,3,3) float64 deformation gradients ``J_t``."""
+        return self.edge_matrices(positions) @ self.inverse_rest
+
+    def energy(self, positions: np.ndarray, targets: np.ndarray) -> float:
+        """positions (N,3) float64, targets (m,3) float64 → E (``inf`` if a tet is flat or inverted)."""
+        jac = self.jacobians(positions)
+        det = np.linalg.det(jac)
+        if not (det > 0).all():
+            return np.inf
+        inverse = np.linalg.inv(jac)
+        distortion = np.einsum("kab,kab->k", jac, jac) + np.einsum("kab,kab->k", inverse, inverse) - 6.0
+        penalty = self.constraints @ positions - targets
+        return 0.25 * float(self.volumes @ distortion) + self.constraint_weight * float(np.sum(penalty * penalty))
+
+    def _newton_system(self, positions: np.ndarray, targets: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+        """The projected Newton matrix (3N,3N) and the gradient (3N,) at ``positions``."""
+        jac = self.jacobians(positions)
+        inv = np.linalg.inv(jac)
+        inv_t = inv.transpose(0, 2, 1)
+        s = inv_t @ inv  # GᵀG
+        t = inv @ inv_t  # GGᵀ
+        q = s @ inv_t  # GᵀGGᵀ
+        scale = 0.25 * self.volumes
+        stress = (2.0 * scale)[:, None, None] * (jac - q)  # ∂E/∂J
+        # Hessian of ¼|t| SD in J, index (a,b),(e,f): ½|t| (δ_ae δ_bf + Gᵀ_af Q_eb + S_ae T_fb + Q_af Gᵀ_eb)
+        hessian = np.einsum("kaf,keb->kabef", inv_t, q) + np.einsum("kae,kfb->kabef", s, t)
+        hessian += np.einsum("kaf,keb->kabef", q, inv_t)
+        hessian = hessian.reshape(-1, 9, 9) + np.eye(9)
+        hessian = 0.5 * (hessian + hessian.transpose(0, 2, 1))
+        values, vectors = np.linalg.eigh(hessian)
+        values = np.maximum(values, EIGEN_FLOOR) * (2.0 * scale)[:, None]
+        hessian = np.einsum("kij,kj,klj->kil", vectors, values, vectors).reshape(-1, 3, 3, 3, 3)
+        b = self.gradient_map
+        element = np.einsum("kcb,kabef,kdf->kcade", b, hessian, b, optimize=True).reshape(-1, 144)
+        gradient = np.zeros((self.n_vertices, 3))
+        np.add.at(gradient, self.tets, np.einsum("kab,kcb->kca", stress, b))
+        gradient += 2.0 * self.constraint_weight * (self.constraints.T @ (self.constraints @ positions - targets))
+        data = self._constant.copy()
+        data[: element.size] = element.ravel()
+        summed = np.bincount(self._slots, weights=data, minlength=len(self._indices))
+        summed[self._diagonal_slots] += RIDGE * summed[self._diagonal_slots].mean()
+        size = len(self._indptr) - 1
+        matrix = sp.csr_matrix((summed, self._indices, self._indptr), shape=(size, size))
+        matrix.has_sorted_indices = True
+        return matrix, gradient.ravel()
+
+    def solve(
+        self,
+        initial: np.ndarray,
+        targets: np.ndarray,
+        *,
+        max_iterations: int = 50,
+        tolerance: float = 1e-6,
+        stop=None,
+    ) -> InjectiveResult:
+        """Minimise E from ``initial (N,3)`` float64 (every tet positively oriented, else :class:`NerfEditError`)
+        towards constraint targets ``targets (m,3)`` float64 → :class:`InjectiveResult`. Stops when the relative
+        energy decrease of an iteration is ≤ ``tolerance``, after ``max_iterations``, or when ``stop(positions)``
+        (optional) returns True after an iteration."""
+        x = np.array(initial, dtype=np.float64) - self.origin
+        row_sums = np.asarray(self.constraints.sum(1)).reshape(-1, 1)
+        targets = np.asarray(targets, dtype=np.float64) - row_sums * self.origin
+        energy = self.energy(x, targets)
+        if not np.isfinite(energy):
+            raise NerfEditError("injective solver: the initial positions have flat or inverted tets")
+        energies, converged = [energy], False
+        while len(energies) <= max_iterations and not converged:
+            matrix, gradient = self._newton_system(x, targets)
+            step = -_Factor(matrix).solve(gradient).reshape(-1, 3)
+            slope = float(gradient @ step.ravel())
+            if slope >= 0:  # not a descent direction at this precision: at the minimum
+                converged = True
+                break
+            alpha = min(1.0, SAFE_STEP * flip_free_step(self.edge_matrices(x), self.edge_matrices(step)))
+            for _ in range(MAX_HALVINGS):
+                trial = x + alpha * step
+                trial_energy = self.energy(trial, targets)
+                if trial_energy <= energy + ARMIJO * alpha * slope:
+                    break
+                alpha *= 0.5
+            else:
+                converged = True
+                break
+            decrease = energy - trial_energy
+            x, energy = trial, trial_energy
+            energies.append(energy)
+            converged = decrease <= tolerance * abs(energies[-2])
+            if stop is not None and stop(x + self.origin):
+                break
+        return InjectiveResult(x + self.origin, len(energies) - 1, energies, bool(converged))
