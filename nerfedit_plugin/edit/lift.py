@@ -50,7 +50,7 @@ class LiftConfig:
     rest proxy). False keeps the ARAP lift as it is, folds included."""
     injective_max_iterations: int = 50
     """Upper bound on the Newton iterations of an inversion-free re-lift."""
-    injective_tolerance: float = 1e-4
+    injective_tolerance: float = 1e-2
     """Stop an inversion-free re-lift when an iteration lowers its energy by less than this fraction."""
 
     def __post_init__(self) -> None:

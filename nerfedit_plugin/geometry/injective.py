@@ -10,7 +10,10 @@ the symmetric Dirichlet energy (the energy of SLIM, Rabinovich et al. 2017), whi
 inverted tet and equals the ARAP energy to second order at a rotation (hence the ¼ and the same dimensionless
 constraint weight ``w_c = w · mean diag(L)`` as :class:`~nerfedit_plugin.geometry.arap.ArapSolver`).
 Each iteration is a projected Newton step (Teran et al. 2005: the per-tet 9×9 Hessian in ``J`` clamped to positive
-eigenvalues, so the assembled system is positive definite) followed by a backtracking (Armijo) line search that
+eigenvalues, so the assembled system is positive definite; its eigensystem in closed form, Smith et al. 2019, from
+one 3×3 SVD per tet), solved inexactly by conjugate gradients preconditioned with the rest stiffness
+``2 L + 2 w_c CᵀC`` per axis (factored once; the exact Cholesky solve is the fallback when an inexact step gains
+nothing), followed by a backtracking (Armijo) line search that
 starts at ``0.9 ×`` the maximal flip-free step of Smith & Schaefer 2015: the smallest ``α > 0`` where a tet's
 ``det(D_t(X) + α D_t(ΔX)) = 0``, i.e. ``α = −1/λ`` for the real negative eigenvalues ``λ`` of
 ``D_t(X)⁻¹ D_t(ΔX)``. Started from positions with every tet positively oriented, every iterate stays so: the map is
@@ -38,6 +41,10 @@ MAX_HALVINGS = 40
 EIGEN_FLOOR = 1e-8
 #: ridge added to the assembled Newton matrix, relative to its mean diagonal (keeps loose parts solvable)
 RIDGE = 1e-10
+#: relative residual of the conjugate-gradient Newton solves
+CG_TOLERANCE = 1e-3
+#: conjugate-gradient iterations per Newton solve at most
+CG_MAX_ITERATIONS = 200
 
 
 class InjectiveResult(NamedTuple):
@@ -50,12 +57,19 @@ class InjectiveResult(NamedTuple):
     converged: bool
 
 
-def flip_free_step(edges: np.ndarray, directions: np.ndarray) -> float:
+def flip_free_step(edges: np.ndarray, directions: np.ndarray, limit: float = np.inf) -> float:
     """edges (K,3,3) float64 edge matrices ``D_t`` (columns ``x_k − x_0``) with ``det > 0``, directions (K,3,3)
     float64 their change ``D_t(ΔX)`` → the largest ``α`` (``inf`` if none) such that every
     ``det(D_t + a D_t(ΔX)) > 0`` for ``0 ≤ a < α`` (Smith & Schaefer 2015): ``det(D + αΔ) = det D · det(I + α D⁻¹Δ)``
-    vanishes at ``α = −1/λ`` for the eigenvalues λ of ``D⁻¹Δ``."""
-    eigenvalues = np.linalg.eigvals(np.linalg.solve(edges, directions))
+    vanishes at ``α = −1/λ`` for the eigenvalues λ of ``D⁻¹Δ``. With a finite ``limit``, tets that cannot flatten
+    before it (``limit · ‖D⁻¹Δ‖_F < 1``, a bound on the spectral radius) are skipped: the answer is exact when it is
+    below ``limit``, else some value ≥ ``limit`` (``inf`` if every tet was skipped)."""
+    relative = np.linalg.solve(edges, directions)
+    if np.isfinite(limit):
+        relative = relative[limit * np.sqrt(np.einsum("kab,kab->k", relative, relative)) >= 1.0]
+    if not len(relative):
+        return np.inf
+    eigenvalues = np.linalg.eigvals(relative)
     real = np.abs(eigenvalues.imag) <= 1e-12 * np.maximum(np.abs(eigenvalues.real), 1e-300)
     shrinking = real & (eigenvalues.real < 0)
     if not shrinking.any():
@@ -63,12 +77,36 @@ def flip_free_step(edges: np.ndarray, directions: np.ndarray) -> float:
     return float((-1.0 / eigenvalues.real[shrinking]).min())
 
 
+def _element_hessians(u, sigma, vt, scale, gradient_map):
+    """The projected 12×12 Hessians (K,12,12) of ``¼|t| Ψ(σ(J_t))`` in the corner positions, from the analytic
+    eigensystem of the 9×9 Hessian in J (Smith et al. 2019): 3 scaling modes ``U e_i e_iᵀ Vᵀ`` (λ = 2 + 6σ_i⁻⁴),
+    3 flip modes ``U (e_i e_jᵀ + e_j e_iᵀ) Vᵀ/√2`` (λ = 2 + 2(σ_i² + σ_iσ_j + σ_j²)/(σ_iσ_j)³) and 3 twist modes
+    ``U (e_i e_jᵀ − e_j e_iᵀ) Vᵀ/√2`` (λ = 2 − 2(σ_i² − σ_iσ_j + σ_j²)/(σ_iσ_j)³: the only negative ones)."""
+    values = [2.0 + 6.0 / sigma**4]
+    modes = [np.einsum("kai,kib->kiab", u, vt)]
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        si, sj = sigma[:, i], sigma[:, j]
+        cube = (si * sj) ** 3
+        a = np.einsum("ka,kb->kab", u[:, :, i], vt[:, j]) * np.sqrt(0.5)
+        c = np.einsum("ka,kb->kab", u[:, :, j], vt[:, i]) * np.sqrt(0.5)
+        values += [(2.0 - 2.0 * (si * si - si * sj + sj * sj) / cube)[:, None]]
+        values += [(2.0 + 2.0 * (si * si + si * sj + sj * sj) / cube)[:, None]]
+        modes += [(a - c)[:, None], (a + c)[:, None]]
+    values = np.concatenate(values, axis=1)
+    values = np.maximum(values, 2.0 * EIGEN_FLOOR) * scale[:, None]
+    k = len(u)  # mode m as a 12-vector over (corner c, axis a): Σ_b Q_ab b_cb
+    vectors = (np.concatenate(modes, axis=1).reshape(k, 27, 3) @ gradient_map.transpose(0, 2, 1)).reshape(k, 9, 3, 4)
+    vectors = vectors.transpose(0, 1, 3, 2).reshape(k, 9, 12)
+    return (vectors * values[:, :, None]).transpose(0, 2, 1) @ vectors
+
+
 class InjectiveSolver:
     """Flip-free minimiser of the symmetric Dirichlet energy plus soft linear constraints on a tet mesh (see the
     module docstring). ``vertices (N,3) float64`` rest (every tet positively oriented), ``tets (K,4) int64``,
     ``constraints`` a sparse ``C (m,N)``, ``constraint_weight`` the dimensionless ``w`` (``w_c = w · mean diag L``,
-    ``L`` the cotangent Laplacian: as in ArapSolver). The sparsity pattern of the Newton matrix is built once; each
-    iteration assembles it, factors it (a sparse Cholesky) and solves once."""
+    ``L`` the cotangent Laplacian: as in ArapSolver). The sparsity pattern of the Newton matrix and the
+    preconditioner's factorisation are built once; each iteration assembles the matrix and solves it by
+    preconditioned conjugate gradients."""
 
     def __init__(self, vertices: np.ndarray, tets: np.ndarray, constraints: sp.spmatrix, constraint_weight: float):
         rest = np.asarray(vertices, dtype=np.float64)
@@ -106,6 +144,15 @@ class InjectiveSolver:
         self._indptr = np.searchsorted(rows, np.arange(size + 1)).astype(np.int32)
         self._indices = (unique % size).astype(np.int32)
         self._diagonal_slots = self._slots[-size:]
+        # preconditioner of the Newton systems: the Hessian at rest without its zero rotation modes, per axis,
+        # 2 L + 2 w_c CᵀC (L the cotangent Laplacian: xᵀLx = Σ|t| ‖J‖²), factored once
+        i, j = tets[:, [0, 0, 0, 1, 1, 2]].ravel(), tets[:, [1, 2, 3, 2, 3, 3]].ravel()
+        n = len(rest)
+        adjacency = sp.coo_matrix((weights.ravel(), (i, j)), shape=(n, n)).tocsr()
+        laplacian = sp.diags(diagonal) - adjacency - adjacency.T
+        stiffness = 2.0 * (laplacian + self.constraint_weight * (self.constraints.T @ self.constraints)).tocsr()
+        stiffness += sp.diags(np.full(n, RIDGE * stiffness.diagonal().mean() + 1e-300))
+        self._preconditioner = _Factor(sp.csr_matrix(stiffness))
 
     def edge_matrices(self, positions: np.ndarray) -> np.ndarray:
         """positions (N,3) float64 → (K,3,3) float64 ``D_t`` (column k = ``x_{k+1} − x_0``)."""
@@ -130,25 +177,14 @@ class InjectiveSolver:
     def _newton_system(self, positions: np.ndarray, targets: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
         """The projected Newton matrix (3N,3N) and the gradient (3N,) at ``positions``."""
         jac = self.jacobians(positions)
-        inv = np.linalg.inv(jac)
-        inv_t = inv.transpose(0, 2, 1)
-        s = inv_t @ inv  # GᵀG
-        t = inv @ inv_t  # GGᵀ
-        q = s @ inv_t  # GᵀGGᵀ
+        u, sigma, vt = np.linalg.svd(jac)  # J = U diag(σ) Vᵀ, σ > 0 on positively oriented tets
         scale = 0.25 * self.volumes
-        stress = (2.0 * scale)[:, None, None] * (jac - q)  # ∂E/∂J
-        # Hessian of ¼|t| SD in J, index (a,b),(e,f): ½|t| (δ_ae δ_bf + Gᵀ_af Q_eb + S_ae T_fb + Q_af Gᵀ_eb)
-        hessian = np.einsum("kaf,keb->kabef", inv_t, q) + np.einsum("kae,kfb->kabef", s, t)
-        hessian += np.einsum("kaf,keb->kabef", q, inv_t)
-        hessian = hessian.reshape(-1, 9, 9) + np.eye(9)
-        hessian = 0.5 * (hessian + hessian.transpose(0, 2, 1))
-        values, vectors = np.linalg.eigh(hessian)
-        values = np.maximum(values, EIGEN_FLOOR) * (2.0 * scale)[:, None]
-        hessian = np.einsum("kij,kj,klj->kil", vectors, values, vectors).reshape(-1, 3, 3, 3, 3)
+        # ∂E/∂J = ¼|t| U diag(Ψ_i) Vᵀ with Ψ(σ) = Σ σ_i² + σ_i⁻², Ψ_i = 2σ_i − 2σ_i⁻³
+        stress = (u * (scale[:, None] * (2.0 * sigma - 2.0 / sigma**3))[:, None, :]) @ vt
         b = self.gradient_map
-        element = np.einsum("kcb,kabef,kdf->kcade", b, hessian, b, optimize=True).reshape(-1, 144)
+        element = _element_hessians(u, sigma, vt, scale, b)
         gradient = np.zeros((self.n_vertices, 3))
-        np.add.at(gradient, self.tets, np.einsum("kab,kcb->kca", stress, b))
+        np.add.at(gradient, self.tets, b @ stress.transpose(0, 2, 1))
         gradient += 2.0 * self.constraint_weight * (self.constraints.T @ (self.constraints @ positions - targets))
         data = self._constant.copy()
         data[: element.size] = element.ravel()
@@ -158,6 +194,29 @@ class InjectiveSolver:
         matrix = sp.csr_matrix((summed, self._indices, self._indptr), shape=(size, size))
         matrix.has_sorted_indices = True
         return matrix, gradient.ravel()
+
+    def _direction(self, matrix: sp.csr_matrix, gradient: np.ndarray, exact: bool = False) -> np.ndarray:
+        """``matrix⁻¹ gradient`` (3N,): by a sparse Cholesky factorisation if ``exact``, else by conjugate gradients
+        preconditioned with the rest stiffness, to a relative residual of :data:`CG_TOLERANCE` (an inexact Newton
+        step; any CG iterate is a descent direction)."""
+        if exact:
+            return _Factor(matrix).solve(gradient)
+        precondition = lambda r: self._preconditioner.solve(r.reshape(-1, 3)).ravel()  # noqa: E731
+        out, residual = np.zeros_like(gradient), gradient.copy()
+        z = precondition(residual)
+        direction, rz = z.copy(), float(residual @ z)
+        bound = (CG_TOLERANCE * np.linalg.norm(gradient)) ** 2
+        for _ in range(CG_MAX_ITERATIONS):
+            product = matrix @ direction
+            step = rz / float(direction @ product)
+            out += step * direction
+            residual -= step * product
+            if float(residual @ residual) <= bound:
+                break
+            z = precondition(residual)
+            rz, previous = float(residual @ z), rz
+            direction = z + (rz / previous) * direction
+        return out
 
     def solve(
         self,
@@ -178,24 +237,25 @@ class InjectiveSolver:
         energy = self.energy(x, targets)
         if not np.isfinite(energy):
             raise NerfEditError("injective solver: the initial positions have flat or inverted tets")
-        energies, converged = [energy], False
+        energies, converged, exact = [energy], False, False
         while len(energies) <= max_iterations and not converged:
             matrix, gradient = self._newton_system(x, targets)
-            step = -_Factor(matrix).solve(gradient).reshape(-1, 3)
+            step = -self._direction(matrix, gradient, exact).reshape(-1, 3)
             slope = float(gradient @ step.ravel())
-            if slope >= 0:  # not a descent direction at this precision: at the minimum
-                converged = True
-                break
-            alpha = min(1.0, SAFE_STEP * flip_free_step(self.edge_matrices(x), self.edge_matrices(step)))
+            if slope >= 0:  # not a descent direction at this precision: at the minimum (checked with the exact step)
+                converged, exact = exact, True
+                continue
+            safe = flip_free_step(self.edge_matrices(x), self.edge_matrices(step), limit=1.0 / SAFE_STEP)
+            alpha = min(1.0, SAFE_STEP * safe)
             for _ in range(MAX_HALVINGS):
                 trial = x + alpha * step
                 trial_energy = self.energy(trial, targets)
                 if trial_energy <= energy + ARMIJO * alpha * slope:
                     break
                 alpha *= 0.5
-            else:
-                converged = True
-                break
+            else:  # no decrease along the inexact step: try the exact one; none along that: at the minimum
+                converged, exact = exact, True
+                continue
             decrease = energy - trial_energy
             x, energy = trial, trial_energy
             energies.append(energy)

@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.injective import InjectiveSolver, flip_free_step
+from nerfedit_plugin.geometry.injective import InjectiveSolver, _element_hessians, flip_free_step
 from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets, tet_signed_volumes
 
 
@@ -50,6 +50,30 @@ def test_rest_is_the_minimum_and_derivatives_match_finite_differences():
     assert np.linalg.eigvalsh(matrix.toarray()).min() > 0  # projected: positive definite
 
 
+def test_analytic_eigensystem_matches_the_projected_9x9_hessian():
+    """The per-tet Hessians from the closed-form eigensystem equal the 9×9 Hessian in J (its closed form, Teran-style
+    products of J⁻¹) clamped by a numerical eigendecomposition, on deformations far from rest (twist modes negative)."""
+    vertices, tets = grid(2)
+    solver = InjectiveSolver(vertices, tets, selection(np.arange(4), len(vertices)), 10.0)
+    rng = np.random.default_rng(3)
+    jac = solver.jacobians(vertices + rng.normal(0, 0.12, vertices.shape))
+    jac = jac[np.linalg.det(jac) > 0]
+    b, scale = solver.gradient_map[: len(jac)], 0.25 * solver.volumes[: len(jac)]
+    inv = np.linalg.inv(jac)
+    inv_t = inv.transpose(0, 2, 1)
+    s, t = inv_t @ inv, inv @ inv_t
+    q = s @ inv_t
+    hessian = np.einsum("kaf,keb->kabef", inv_t, q) + np.einsum("kae,kfb->kabef", s, t)
+    hessian = (hessian + np.einsum("kaf,keb->kabef", q, inv_t)).reshape(-1, 9, 9) + np.eye(9)
+    values, vectors = np.linalg.eigh(0.5 * (hessian + hessian.transpose(0, 2, 1)))
+    assert (values.min(1) < -0.1).sum() > 5  # far enough from rest for the projection to matter
+    clamped = np.einsum("kij,kj,klj->kil", vectors, np.maximum(values, 1e-8) * 2 * scale[:, None], vectors)
+    expected = np.einsum("kcb,kabef,kdf->kcade", b, clamped.reshape(-1, 3, 3, 3, 3), b).reshape(-1, 12, 12)
+    u, sigma, vt = np.linalg.svd(jac)
+    got = _element_hessians(u, sigma, vt, scale, b)
+    assert np.abs(got - expected).max() <= 1e-9 * np.abs(expected).max()
+
+
 def test_flip_free_step_is_where_the_first_tet_flattens():
     rng = np.random.default_rng(1)
     edges = np.eye(3) + rng.normal(0, 0.2, (200, 3, 3))
@@ -62,6 +86,10 @@ def test_flip_free_step_is_where_the_first_tet_flattens():
     for a in np.linspace(0, 0.999 * alpha, 50):
         assert (dets(a) > 0).all()
     assert flip_free_step(edges, 0.1 * edges) == np.inf  # growing every tet never flattens one
+    # a limit skips tets that cannot flatten before it: exact below the limit, at least the limit above it
+    assert flip_free_step(edges, directions, limit=2 * alpha) == alpha
+    assert flip_free_step(edges, directions, limit=0.5 * alpha) >= 0.5 * alpha
+    assert flip_free_step(edges, 1e-3 * directions, limit=1.0) == np.inf
 
 
 def test_a_folding_pull_stays_injective_and_lowers_the_energy():
