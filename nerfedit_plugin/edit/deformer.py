@@ -34,6 +34,7 @@ class Overlay:
     rest: SurfaceMesh
     deformed: SurfaceMesh | None = None
     style: Literal["wire", "surface"] = "wire"
+    """``wire``: edges in the overlay colour; ``surface``: shaded triangles, in the meshes' vertex colours if any."""
 
 
 class Deformer(abc.ABC):

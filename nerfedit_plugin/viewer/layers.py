@@ -79,7 +79,9 @@ def _overlay(mesh: SurfaceMesh | None, style: str, shift: np.ndarray):
     if mesh is None:
         return []
     moved = mesh.with_vertices(mesh.vertices + shift)
-    return [_edges(moved.vertices, moved.faces, OVERLAY) if style == "wire" else _triangles(moved, OVERLAY)]
+    if style == "wire":
+        return [_edges(moved.vertices, moved.faces, OVERLAY)]
+    return [_triangles(moved, OVERLAY if mesh.vertex_colors is None else None)]  # keep a coloured overlay's colours
 
 
 def edit_geometries(
