@@ -125,3 +125,92 @@ def test_rays_on_cuda_match_cpu():
     o_cpu, d_cpu = generate_rays(cams)
     o_gpu, d_gpu = generate_rays(cams.to("cuda"))
     assert o_gpu.is_cuda and torch.allclose(d_gpu.cpu(), d_cpu, atol=1e-6) and torch.allclose(o_gpu.cpu(), o_cpu)
+
+
+def test_cameras_validate_and_convert_their_fields():
+    c2w = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)
+    cams = Cameras(c2w, torch.tensor([30.0, 31.0], dtype=torch.float64), 30.0, 20.0, 15.0, 1, 1)  # 1×1 is valid
+    assert cams.c2w.dtype == cams.fx.dtype == cams.fy.dtype == torch.float32 and cams.fy.shape == (2,)
+    with pytest.raises(ValueError, match=r"Cameras\.c2w: expected shape \(C,4,4\), got \(2, 3, 4\)"):
+        Cameras(torch.zeros(2, 3, 4), 30.0, 30.0, 20.0, 15.0, 40, 30)
+    with pytest.raises(ValueError, match=r"Cameras\.fx: expected shape \(2,\), got \(3,\)"):
+        Cameras(c2w, torch.ones(3), 30.0, 20.0, 15.0, 40, 30)
+    for width, height in ((0, 5), (5, 0)):
+        with pytest.raises(ValueError, match=f"image size must be positive, got {width}x{height}"):
+            Cameras(c2w, 30.0, 30.0, 20.0, 15.0, width, height)
+
+
+def assert_same_cameras(a: Cameras, b: Cameras) -> None:
+    assert (a.width, a.height) == (b.width, b.height)
+    for name in ("c2w", "fx", "fy", "cx", "cy"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_indexing_keeps_the_batch_dimension_and_to_copies_every_field():
+    cams = random_cameras(n=4, width=40, height=30)
+    one = cams[1]
+    assert len(one) == 1 and float(one.fx[0]) == float(cams.fx[1]) and torch.equal(one.c2w[0], cams.c2w[1])
+    assert_same_cameras(cams[[1]], one)
+    picked = cams[[2, 0]]
+    for name in ("c2w", "fx", "fy", "cx", "cy"):
+        assert torch.equal(getattr(picked, name), getattr(cams, name)[torch.tensor([2, 0])])
+    assert_same_cameras(cams[torch.tensor([2, 0])], picked)
+    assert (picked.width, picked.height) == (40, 30)
+    assert_same_cameras(cams.to("cpu"), cams)
+
+
+def test_scaling_factors_by_hand():
+    cams = random_cameras(n=2, width=40, height=30)
+    assert_same_cameras(cams.downscale(1), cams)
+    assert_same_cameras(cams.upscale(1), cams)
+    up = cams.upscale(2)
+    assert (up.width, up.height) == (80, 60)
+    for name in ("fx", "fy", "cx", "cy"):
+        assert torch.equal(getattr(up, name), 2 * getattr(cams, name)), name
+    assert cams.downscale(30).height == 1  # a factor equal to a side is allowed
+    assert random_cameras(n=1, width=30, height=40).downscale(30).width == 1
+    with pytest.raises(ValueError, match="downscale factor 31 exceeds the image size 40x30"):
+        cams.downscale(31)
+    with pytest.raises(ValueError, match="downscale factor must be a positive integer, got 0"):
+        cams.downscale(0)
+    with pytest.raises(ValueError, match="upscale factor must be a positive integer, got 1.5"):
+        cams.upscale(1.5)
+
+
+def test_rays_of_a_single_camera_need_no_index_and_are_float32():
+    cams = random_cameras(n=3)
+    single = cams[2]
+    pixels = torch.tensor([[0.0, 0.0], [12.5, 7.25], [39.0, 29.0]], dtype=torch.float64)
+    origins, directions = generate_rays(single, pixels=pixels)
+    expected = generate_rays(cams, 2, pixels.float())
+    assert directions.dtype == torch.float32
+    assert torch.equal(origins, expected[0]) and torch.equal(directions, expected[1])
+    with pytest.raises(ValueError, match="^generate_rays: pixels given for several cameras; pass index$"):
+        generate_rays(cams, pixels=pixels)
+
+
+def test_look_at_by_hand_for_one_camera_also_at_the_pole():
+    # from −y looking at the origin with +z up: x = (1,0,0), y = (0,0,1), z = (0,−1,0)
+    expected = [[1.0, 0, 0, 0], [0, 0, -1, -5], [0, 1, 0, 0], [0, 0, 0, 1]]
+    assert torch.equal(look_at([0.0, -5.0, 0.0], [0.0, 0.0, 0.0]), torch.tensor(expected))
+    # straight above: up ∥ view, so the least aligned world axis (x) is up: x = (0,−1,0), y = (1,0,0), z = (0,0,1)
+    expected = [[0.0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 1, 5], [0, 0, 0, 1]]
+    assert torch.equal(look_at([0.0, 0.0, 5.0], [0.0, 0.0, 0.0]), torch.tensor(expected))
+
+
+def test_sphere_poses_defaults_formula_and_seeded_offset():
+    assert torch.equal(sphere_poses(6, 2.0), sphere_poses(6, 2.0, hemisphere=False, seed=0))
+    assert float(sphere_poses(6, 2.0)[:, 2, 3].min()) < 0  # the default is the whole sphere
+    one = sphere_poses(1, 2.0)  # n = 1: a single camera on the equator
+    assert abs(float(one[0, 2, 3])) < 1e-6 and abs(float(one[0, :3, 3].norm()) - 2.0) < 1e-6
+    with pytest.raises(ValueError, match="sphere_poses: n must be >= 1, got 0"):
+        sphere_poses(0, 1.0)
+    # consecutive azimuths advance by the golden angle π(3 − √5)
+    eyes = sphere_poses(8, 1.0, seed=5)[:, :3, 3].double()
+    step = torch.diff(torch.atan2(eyes[:, 1], eyes[:, 0])) % (2 * math.pi)
+    assert torch.allclose(step, torch.full((7,), math.pi * (3 - math.sqrt(5)), dtype=torch.float64), atol=1e-5)
+    # the offset φ₀ (the azimuth of a single camera) is uniform on [0, 2π) over seeds
+    first = torch.stack([sphere_poses(1, 1.0, seed=s)[0, :3, 3] for s in range(400)]).double()
+    phi0 = torch.atan2(first[:, 1], first[:, 0]) % (2 * math.pi)
+    assert 0.4 < float((phi0 < math.pi).double().mean()) < 0.6
+    assert 0.1 < float((phi0 < 1.0).double().mean()) < 0.22  # 1 / 2π ≈ 0.16

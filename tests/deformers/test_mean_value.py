@@ -134,3 +134,14 @@ def test_chunking_and_threads_do_not_change_the_result():
     a = mean_value_coordinates(INSIDE, V, F)
     b = mean_value_coordinates(INSIDE, V, F, chunk_size=7, workers=1)
     assert np.allclose(a, b, rtol=0, atol=1e-14)
+
+
+def test_points_on_the_cage_have_winding_one_half_and_vertices_interpolate():
+    """On the surface the cage subtends half the sphere of directions: winding number ½ on a face, an edge and a
+    vertex; at a vertex the coordinates are that vertex's indicator."""
+    faces, _, on_face = _on_faces(10)
+    on_edge = 0.3 * V[F[faces, 0]] + 0.7 * V[F[faces, 1]]
+    points = np.concatenate([on_face, on_edge, V[F[faces, 2]]])
+    w, winding = mean_value_coordinates(points, V, F, return_winding=True)
+    np.testing.assert_array_equal(winding, np.full(30, 0.5))
+    np.testing.assert_array_equal(w[20:], np.eye(len(V))[F[faces, 2]])

@@ -161,3 +161,43 @@ def test_dqs_aligns_signs_with_each_points_dominant_bone():
     to_bone_0 = hand_dqs(points, weights, duals, np.zeros(len(points), dtype=int))
     gap = np.linalg.norm(to_bone_0 - expected, axis=1)
     assert set(dominant) == {0, 1, 2} and (gap[dominant > 0] > 0.1).all() and (gap[dominant == 0] < 1e-12).all()
+
+
+def test_normalize_weights_by_hand():
+    """Negatives clip to 0 (no threshold by default), a weight equal to the threshold is kept, float32 → float64."""
+    out = normalize_weights(np.array([[-0.5, 1.0, 0.5], [0.3, 0.7, 0.0]], dtype=np.float32))
+    assert out.dtype == np.float64
+    np.testing.assert_allclose(out, [[0.0, 2 / 3, 1 / 3], [0.3, 0.7, 0.0]], rtol=1e-7)
+    np.testing.assert_array_equal(normalize_weights(np.array([[0.25, 0.75]]), threshold=0.25), [[0.25, 0.75]])
+    # clipped before thresholding: not even a negative threshold lets a negative weight through
+    np.testing.assert_array_equal(normalize_weights(np.array([[-0.5, 1.0]]), threshold=-1.0), [[0.0, 1.0]])
+
+
+def test_binding_is_float64_with_sorted_dominated_points():
+    binding = Binding.create(POINTS.astype(np.float32), WEIGHTS.astype(np.float32))
+    assert binding.points_t.dtype == binding.weights_t.dtype == np.float64
+    dominant = WEIGHTS.argmax(1)
+    for k, rows in enumerate(binding.dominated):  # the brute-force grouping, in increasing point order
+        np.testing.assert_array_equal(rows, np.flatnonzero(dominant == k))
+
+
+def test_skin_defaults_to_dqs_and_rejects_unknown_methods():
+    rot, trans = random_bones(5, seed=9)
+    binding = Binding.create(POINTS, WEIGHTS)
+    np.testing.assert_array_equal(skin(binding, rot, trans), dqs(binding, dual_quaternions(rot, trans)))
+    with pytest.raises(ValueError, match="unknown skinning method 'slerp'"):
+        skin(binding, rot, trans, "slerp")
+
+
+def test_dqs_hemisphere_test_uses_the_rotations_only():
+    """Two bones about z with half-angles 10° and 95° (real parts' dot cos 85° > 0: the same hemisphere) and large
+    opposite translations along z, whose dual scalar parts have a large negative product: the blend keeps both
+    signs, as the point-by-point DQS does."""
+    quats = np.array([[np.cos(a), 0.0, 0.0, np.sin(a)] for a in np.radians([10.0, 95.0])])
+    trans = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, -3.0]])
+    duals = np.array([np.concatenate([q, 0.5 * quat_mul(np.concatenate([[0.0], t]), q)]) for q, t in zip(quats, trans)])
+    assert duals[0, :4] @ duals[1, :4] > 0 > duals[0, :5] @ duals[1, :5]
+    points = POINTS[:20]
+    weights = np.tile([0.6, 0.4], (len(points), 1))
+    expected = hand_dqs(points, weights, duals, np.zeros(len(points), dtype=int))
+    np.testing.assert_allclose(dqs(Binding.create(points, weights), duals), expected, rtol=0, atol=1e-12)

@@ -2,12 +2,13 @@
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
+from nerfedit_plugin.edit.spec import check_keys, load_edit_spec, number, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 
 GRID = np.stack(np.meshgrid(*[np.linspace(-1, 1, 5)] * 3, indexing="ij"), -1).reshape(-1, 3)
@@ -227,3 +228,157 @@ def test_non_finite_scalar_in_yaml_is_rejected(tmp_path, text):
     (tmp_path / "e.yaml").write_text(f"handles:\n  - select: {{indices: [0]}}\n    transform: {{scale: {text}}}\n")
     with pytest.raises(NerfEditError, match=r"e.yaml: handles\[0\].transform.scale: is NaN or Inf"):
         load_edit_spec(tmp_path / "e.yaml")
+
+
+def handle(select=None, **rest):
+    return {"select": select or {"indices": [0]}, **(rest or {"fixed": True})}
+
+
+EXACT = [  # (spec, the whole error message after "e.json: ")
+    ({"handles": [handle(), 5]}, "handles[1]: expected a mapping, got int"),
+    ([1, 2], ": expected a mapping, got list"),
+    ({"handles": [handle()], "bogus": 1}, "bogus: unknown key (expected one of ['frames', 'handles'])"),
+    ({"handles": [{"fixed": True}]}, "handles[0].select: missing"),
+    ({"handles": [handle({"box": {"min": [0, 0, 0]}})]}, "handles[0].select.box.max: missing"),
+    (
+        {"handles": [handle({"box": {"min": ["a", 0, 0], "max": [1, 1, 1]}})]},
+        "handles[0].select.box.min: expected 3 numbers, got ['a', 0, 0]",
+    ),
+    (
+        {"handles": [handle({"box": {"min": [0, 0], "max": [1, 1, 1]}})]},
+        "handles[0].select.box.min: expected 3 numbers, got [0, 0]",
+    ),
+    ({"handles": [handle({"sphere": {"center": [0, 0, 0]}})]}, "handles[0].select.sphere.radius: missing"),
+    (
+        {"handles": [handle({"box": {"min": [True, 0, 0], "max": [1, 1, 1]}})]},
+        "handles[0].select.box.min: expected 3 numbers, got [True, 0, 0]",
+    ),
+    (
+        {"handles": [handle({"sphere": {"center": [0, 0], "radius": 1}})]},
+        "handles[0].select.sphere.center: expected 3 numbers, got [0, 0]",
+    ),
+    (
+        {"handles": [handle({"indices": 5})]},
+        "handles[0].select.indices: expected a non-empty list of integer vertex indices",
+    ),
+    ({"handles": [handle({"indices": [2**63]})]}, f"handles[0].select.indices: index {2**63} out of range"),
+    (
+        {"handles": [handle({"indices": [-(2**63) - 1]})]},
+        f"handles[0].select.indices: index {-(2**63) - 1} out of range",
+    ),
+    ({"handles": [handle(transform={})]}, "handles[0].transform: empty transform"),
+    (
+        {"handles": [handle(transform={"translate": [1, 2]})]},
+        "handles[0].transform.translate: expected 3 numbers, got [1, 2]",
+    ),
+    (
+        {"handles": [handle(transform={"rotate": {"axis": [1, 2], "degrees": 3}})]},
+        "handles[0].transform.rotate.axis: expected 3 numbers, got [1, 2]",
+    ),
+    (
+        {"handles": [handle(transform={"rotate": {"axis": [0, 0, 1], "degrees": 3, "center": [1]}})]},
+        "handles[0].transform.rotate.center: expected 3 numbers, got [1]",
+    ),
+    (
+        {"handles": [handle(transform={"rotate": {"axis": [0, 0, 1], "degrees": "ten"}})]},
+        "handles[0].transform.rotate.degrees: expected a number, got 'ten'",
+    ),
+    ({"handles": [handle(transform={"scale": 10**400})]}, "handles[0].transform.scale: is too large"),
+    ({"handles": [handle()], "frames": "2"}, "frames: expected an integer >= 1, got '2'"),
+]
+
+
+@pytest.mark.parametrize("data, message", EXACT)
+def test_error_messages_are_exactly_source_key_problem(data, message):
+    with pytest.raises(NerfEditError) as err:
+        parse_edit_spec(data, allowed_keys=("handles",), source="e.json")
+    assert str(err.value) == f"e.json: {message}"
+
+
+def test_parse_defaults_kinds_extras_and_extreme_indices():
+    parsed = parse_edit_spec({"handles": [handle({"box": {"min": [0, 0, 0], "max": [0, 0, 0]}})]})  # min = max
+    assert parsed.source == "<edit spec>" and parsed.base_dir == Path(".") and not parsed.frames_given
+    assert parsed.extra == {} and parsed.handles[0].selection.kind == "box"
+    with pytest.raises(NerfEditError, match="^<edit spec>: frames: "):
+        parse_edit_spec({"frames": 0})
+    data = {"handles": [handle({"indices": [-(2**63), 2**63 - 1]})], "frames": 3, "mesh": "m.ply"}
+    parsed = parse_edit_spec(data, ("handles", "mesh"))
+    assert parsed.frames_given and parsed.extra == {"mesh": "m.ply"} and parsed.handles[0].selection.kind == "indices"
+    assert parsed.handles[0].selection.params["indices"].tolist() == [-(2**63), 2**63 - 1]
+    with pytest.raises(NerfEditError, match=r"^e\.json: handles: no handles given$"):
+        parse_edit_spec({"frames": 2}, source="e.json").handle_targets(GRID)
+    assert check_keys({}, ("a",), "s", "") == {}
+    with pytest.raises(NerfEditError, match="^s: a: missing$"):
+        check_keys({}, ("a",), "s", "", required=("a",))
+    assert number(-1, "s", "k") == -1.0  # only positive=True demands > 0
+
+
+def test_selection_edges_by_hand():
+    ball = spec([handle({"sphere": {"center": [0, 0, 0], "radius": 0.5}})])  # the centre and its 6 grid neighbours
+    assert len(ball.handle_targets(GRID)[0]) == 7  # at distance exactly 0.5: inside
+    corner = spec([handle({"sphere": {"center": [1, 1, 1], "radius": 0.01}})])
+    assert corner.handle_targets(GRID)[0].tolist() == [124]
+    for bad, message in (
+        ({"indices": [0, 125]}, r"handles\[0\]\.select\.indices: index 125 out of range for 125 points"),
+        ({"box": {"min": [5, 5, 5], "max": [6, 6, 6]}}, r"handles\[0\]\.select\.box: selects no points \(of 125\)"),
+    ):
+        with pytest.raises(NerfEditError, match=f"^e\\.json: {message}$"):
+            spec([handle(bad)]).handle_targets(GRID)
+
+
+def test_integer_points_get_float_targets():
+    moved = spec([handle({"indices": [0]}, transform={"translate": [0.5, 0, 0]})])
+    _, targets = moved.handle_targets(np.array([[1, 2, 3], [4, 5, 6]]))
+    assert targets.tolist() == [[[1.5, 2.0, 3.0]]]
+
+
+def test_file_errors_name_source_and_key(tmp_path):
+    (tmp_path / "a.ply").write_text("x")
+    (tmp_path / "b.ply").write_text("x")
+    extra = {
+        "one": "a.ply",
+        "gone": "zz.ply",
+        "num": 5,
+        "nul": "a\0b",
+        "xgone": "X.ply",
+        "list": ["b.ply", "a.ply"],
+        "bad": ["a.ply", "c.ply"],
+    }
+    extra |= {"glob": "*.obj", "empty": [], "nullist": ["a\0b"]}
+    s = parse_edit_spec({"handles": [handle()], **extra}, ["handles", *extra], "e.json", tmp_path)
+    assert s.paths("one") == [tmp_path / "a.ply"] and s.paths("list") == [tmp_path / "b.ply", tmp_path / "a.ply"]
+    for call, message in (
+        (lambda: s.path("missing"), "missing: missing"),
+        (lambda: s.path("num"), "num: expected a file path, got 5"),
+        (lambda: s.path("gone"), f"gone: file not found: {tmp_path / 'zz.ply'}"),
+        (lambda: s.paths("gone"), f"gone: file not found: {tmp_path / 'zz.ply'}"),
+        (lambda: s.paths("xgone"), f"xgone: file not found: {tmp_path / 'X.ply'}"),
+        (lambda: s.paths("bad"), f"bad[1]: file not found: {tmp_path / 'c.ply'}"),
+        (lambda: s.paths("glob"), "glob: pattern '*.obj' matches no file"),
+        (lambda: s.paths("empty"), "empty: expected a file, a glob pattern or a non-empty list of files"),
+        (lambda: s.paths("num"), "num: expected a file, a glob pattern or a non-empty list of files"),
+    ):
+        with pytest.raises(NerfEditError) as err:
+            call()
+        assert str(err.value) == f"e.json: {message}"
+    for call, key in ((lambda: s.path("nul"), "nul"), (lambda: s.paths("nullist"), r"nullist\[0\]")):
+        with pytest.raises(NerfEditError, match=f"^e\\.json: {key}: invalid file path 'a\\\\x00b'"):
+            call()
+
+
+def test_json_suffix_picks_the_json_parser_and_errors_are_one_line(tmp_path):
+    import yaml
+
+    for name in ("e.json", "E.JSON"):
+        (tmp_path / name).write_text("{")
+        with pytest.raises(NerfEditError, match=r"cannot parse \(Expecting property name"):
+            load_edit_spec(tmp_path / name)
+    (tmp_path / "e.yaml").write_text("a: [")
+    with pytest.raises(yaml.YAMLError) as parser:
+        yaml.safe_load("a: [")
+    with pytest.raises(NerfEditError) as err:
+        load_edit_spec(tmp_path / "e.yaml")
+    assert str(err.value) == f"{tmp_path / 'e.yaml'}: cannot parse ({parser.value})".replace("\n", " ")
+    (tmp_path / "latin.json").write_bytes(b"\xff\xfe")
+    with pytest.raises(NerfEditError, match="latin.json: cannot read"):
+        load_edit_spec(tmp_path / "latin.json")

