@@ -38,3 +38,36 @@ def tiny_scene(tmp_path_factory):
         GenerateConfig(out=out, mesh="sample:cow", resolution=32, n_train=8, n_val=1, n_test=2, supersample=1)
     )
     return out
+
+
+FLOW_EDIT = {
+    "handles": [
+        {"select": {"box": {"min": [-1, -1, -1], "max": [1, 1, -0.25]}}, "fixed": True},
+        {"select": {"box": {"min": [-1, -1, 0.25], "max": [1, 1, 1]}}, "transform": {"translate": [0.15, 0, 0]}},
+    ],
+    "frames": 3,
+}
+
+
+@pytest.fixture(scope="session")
+def capsule_flow(capsule, proxy_cache, tmp_path_factory):
+    """Folders of the whole pipeline on the vertex-coloured capsule, made by ``nerfedit`` itself: ``data`` (24×24
+    generated dataset, z-up, 2 test views), ``run`` (its exact mesh-field run) and ``edit`` (a 3-frame handle edit of
+    the run, ``edit.json``; its proxy in the session's cache)."""
+    import json
+
+    from nerfedit_plugin.cli.app import main
+    from nerfedit_plugin.data.synthetic import colorize
+
+    root = tmp_path_factory.mktemp("capsule-flow")
+    colorize(capsule).save(root / "capsule.ply")
+    (root / "edit.json").write_text(json.dumps(FLOW_EDIT))
+    for argv in (
+        ["generate", "--mesh", root / "capsule.ply", "--resolution", 24, "--n-train", 4, "--n-val", 1, "--n-test", 2,
+         "--supersample", 1, "--up-axis", "z", "--out", root / "data"],
+        ["train", "--field", "mesh", "--data", root / "data" / "mesh.ply", "--out", root / "run"],
+        ["edit", "--run", root / "run", "--edit", root / "edit.json", "--out", root / "edit",
+         "--cache-dir", proxy_cache],
+    ):  # fmt: skip
+        assert main([str(a) for a in argv]) == 0, argv
+    return root

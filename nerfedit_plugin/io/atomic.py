@@ -174,26 +174,36 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike, overwrite: bool = False, keep_partial: bool = False) -> Iterator[Path]:
+def atomic_dir(
+    path: str | os.PathLike, overwrite: bool = False, keep_partial: bool = False, resume: bool = False
+) -> Iterator[Path]:
     """Yield a staging folder beside ``path``; on success it becomes ``path``, on error it is removed.
 
     An existing non-empty ``path`` (or a partial one) is an error unless ``overwrite`` (then it is replaced only
     after success). Stale staging entries of dead processes beside ``path`` are removed first. With
     ``keep_partial``, a staging folder marked partial (:func:`mark_partial`) when the error strikes becomes ``path``
     instead of being removed — when nothing is at ``path`` (a previous output is never replaced by a partial one).
+    With ``resume``, a partial output at ``path`` becomes the staging folder (the writer continues it).
     """
     from nerfedit_plugin.errors import NerfEditError
 
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise NerfEditError(f"{path}: exists and is not a folder")
-    if path.is_dir() and any(path.iterdir()) and not overwrite:
+    resuming = resume and path.is_dir() and is_partial(path)
+    if path.is_dir() and any(path.iterdir()) and not overwrite and not resuming:
         if is_partial(path):
-            raise NerfEditError(f"{path}: a partial output (it holds {PARTIAL}); pass --overwrite to replace it")
+            raise NerfEditError(
+                f"{path}: a partial output (it holds {PARTIAL}); pass --resume to continue it or --overwrite to "
+                "replace it"
+            )
         raise NerfEditError(f"{path}: output folder exists and is not empty (pass --overwrite to replace it)")
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(path.parent)
     stage = _create(path.parent, path.name, directory=True)
+    if resuming:
+        with _uninterrupted():
+            os.replace(path, stage)
     old = None
     try:
         yield stage
@@ -238,6 +248,15 @@ def clear_partial(folder: str | os.PathLike) -> None:
     """Remove the :data:`PARTIAL` marker: the last step of completing a folder that was marked partial."""
     with contextlib.suppress(FileNotFoundError):
         os.unlink(Path(folder) / PARTIAL)
+
+
+def partial_info(folder: str | os.PathLike) -> dict | None:
+    """The JSON info of ``folder``'s :data:`PARTIAL` marker (``None`` when it has none or it is unreadable)."""
+    try:
+        info = json.loads((Path(folder) / PARTIAL).read_text())
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) else None
 
 
 def is_partial(folder: str | os.PathLike) -> bool:

@@ -12,19 +12,10 @@ from pathlib import Path
 import pytest
 
 from nerfedit_plugin.cli.app import interrupts_raise, main
-from nerfedit_plugin.data.synthetic import colorize
 from nerfedit_plugin.io import faults
 from nerfedit_plugin.io.atomic import PARTIAL, STAGING, atomic_dir, atomic_path, is_partial, mark_partial
 from nerfedit_plugin.io.faults import POINTS, InjectedFault, fault_point
 from nerfedit_plugin.io.run import open_run
-
-EDIT = {
-    "handles": [
-        {"select": {"box": {"min": [-1, -1, -1], "max": [1, 1, -0.25]}}, "fixed": True},
-        {"select": {"box": {"min": [-1, -1, 0.25], "max": [1, 1, 1]}}, "transform": {"translate": [0.15, 0, 0]}},
-    ],
-    "frames": 2,
-}
 
 
 @pytest.fixture
@@ -122,20 +113,14 @@ def test_keep_partial_keeps_a_marked_stage_only_where_nothing_was(armed, tmp_pat
 
 # ---- real nerfedit processes -----------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def flow(capsule, proxy_cache, tmp_path_factory):
-    """A tiny dataset of the capsule, its mesh-field run, an edit (its proxy in the shared cache) and a render."""
-    root = tmp_path_factory.mktemp("faults")
-    colorize(capsule).save(root / "capsule.ply")
-    (root / "edit.json").write_text(json.dumps(EDIT))
-    for argv in (
-        ["generate", "--mesh", root / "capsule.ply", "--resolution", 24, "--n-train", 4, "--n-val", 1, "--n-test", 2,
-         "--supersample", 1, "--up-axis", "z", "--out", root / "data"],
-        ["train", "--field", "mesh", "--data", root / "data" / "mesh.ply", "--out", root / "run"],
-        ["edit", "--run", root / "run", "--edit", root / "edit.json", "--out", root / "edit",
-         "--cache-dir", proxy_cache],
-        ["render", "--run", root / "run", "--cameras", root / "data", "--out", root / "renders"],
-    ):  # fmt: skip
-        assert main([str(a) for a in argv]) == 0, argv
+def flow(capsule_flow, tmp_path_factory):
+    """A copy of the session's capsule flow (these tests replace its edit), with a render of the run."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("faults") / "flow"
+    shutil.copytree(capsule_flow, root, symlinks=True)
+    argv = ["render", "--run", root / "run", "--cameras", root / "data", "--out", root / "renders"]
+    assert main([str(a) for a in argv]) == 0
     return root
 
 
@@ -178,16 +163,24 @@ def test_a_render_killed_after_its_first_frame_leaves_nothing_and_the_next_rende
     done = nerfedit(*argv)
     assert done.returncode == 0, done.stderr
     assert staged(tmp_path) == [] and sorted(p.name for p in (tmp_path / "frames").iterdir()) == [
-        "config.yml", "frame_0000", "frame_0001"]  # fmt: skip
+        "config.yml", "frame_0000", "frame_0001", "frame_0002"]  # fmt: skip
 
 
-def test_a_render_terminated_between_frames_says_nothing_written(flow, tmp_path):
+def test_a_render_terminated_between_frames_keeps_them_and_resume_finishes_it(flow, tmp_path):
+    out = tmp_path / "frames"
     argv = ["render", "--run", flow / "run", "--cameras", flow / "data", "--deformation",
-            flow / "edit" / "deformation.npz", "--out", tmp_path / "frames"]  # fmt: skip
-    termed = nerfedit(*argv, fault="render.frame@1:term")
+            flow / "edit" / "deformation.npz", "--out", out]  # fmt: skip
+    termed = nerfedit(*argv, fault="render.frame@2:term")
     assert termed.returncode == 128 + signal.SIGTERM
-    assert termed.stderr.strip().splitlines() == ["nerfedit render: interrupted (SIGTERM); nothing written"]
-    assert list(tmp_path.iterdir()) == []
+    assert termed.stderr.strip().splitlines() == [f"nerfedit render: interrupted (SIGTERM); kept (partial): {out}"]
+    assert sorted(os.listdir(out)) == [PARTIAL, "frame_0000", "frame_0001"] and staged(tmp_path) == []
+    kept = {name: contents(out / name) for name in ("frame_0000", "frame_0001")}
+    refused = nerfedit(*argv)
+    assert refused.returncode == 2 and "pass --resume" in refused.stderr
+    resumed = nerfedit(*argv, "--resume", fault="render.frame@2:kill")  # a kill would strike at the 2nd new frame
+    assert resumed.returncode == 0, resumed.stderr
+    assert sorted(os.listdir(out)) == ["config.yml", "frame_0000", "frame_0001", "frame_0002"]
+    assert {name: contents(out / name) for name in kept} == kept and staged(tmp_path) == []
 
 
 def test_a_train_interrupted_after_a_checkpoint_keeps_a_partial_run_that_readers_refuse(tiny_scene, tmp_path):

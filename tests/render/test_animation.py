@@ -1,0 +1,155 @@
+"""Animations: frame selections, nerfstudio camera paths, trajectories through ``nerfedit render``, videos, resume
+guards, and the Ray executor (bit-identical to the local one, and complete when a worker is killed)."""
+
+import json
+import math
+import os
+import signal
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+import torch
+
+from nerfedit_plugin.cli.app import main
+from nerfedit_plugin.data.datasets import read_transforms
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.render.animation import parse_frames, read_camera_path, trajectory
+from nerfedit_plugin.render.executors import LocalExecutor, RayExecutor, RenderJob
+
+
+def run(*argv):
+    assert main([str(a) for a in argv]) == 0, argv
+
+
+@pytest.mark.parametrize(
+    "spec, frames",
+    [(None, [0, 1, 2, 3, 4]), ("all", [0, 1, 2, 3, 4]), ("3", [3]), ("1:4", [1, 2, 3]), (":2", [0, 1]),
+     ("2:", [2, 3, 4]), ("::2", [0, 2, 4]), ("1:5:3", [1, 4])],
+)  # fmt: skip
+def test_frame_selections_are_python_ranges(spec, frames):
+    assert parse_frames(spec, 5) == frames
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [("x", "expected N, A:B"), ("1:2:3:4", "expected N, A:B"), ("-1", "must be >= 0"), ("0:4:0", "the step must be"),
+     ("5", "frame 5 is out of range"), ("0:9", "frame 5 is out of range"), ("3:3", "selects no frame")],
+)  # fmt: skip
+def test_bad_frame_selections_name_the_option(spec, message):
+    with pytest.raises(NerfEditError, match=rf"^--frame: {message}"):
+        parse_frames(spec, 5)
+
+
+def camera_path(transforms, fps=12):
+    """The cameras of ``transforms`` as the nerfstudio viewer exports a camera path (vertical fov in degrees)."""
+    cams = transforms.cameras
+    fov = [math.degrees(2 * math.atan(cams.height / (2 * float(fy)))) for fy in cams.fy]
+    path = [{"camera_to_world": c2w.flatten().tolist(), "fov": f, "aspect": 1.0} for c2w, f in zip(cams.c2w, fov)]
+    size = {"render_width": cams.width, "render_height": cams.height}
+    return {"camera_type": "perspective", **size, "camera_path": path, "fps": fps, "seconds": len(path) / fps}
+
+
+def test_a_nerfstudio_camera_path_gives_the_same_cameras(capsule_flow, tmp_path):
+    transforms = read_transforms(capsule_flow / "data", "test")
+    (tmp_path / "camera_path.json").write_text(json.dumps(camera_path(transforms)))
+    cameras, fps = read_camera_path(tmp_path / "camera_path.json")
+    assert fps == 12 and (cameras.width, cameras.height) == (transforms.cameras.width, transforms.cameras.height)
+    assert torch.allclose(cameras.c2w, transforms.cameras.c2w) and torch.allclose(cameras.fy, transforms.cameras.fy)
+    bad = {**camera_path(transforms), "render_height": 0}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(NerfEditError, match=r"bad.json: render_height: expected a positive integer"):
+        read_camera_path(tmp_path / "bad.json")
+    bad = camera_path(transforms)
+    bad["camera_path"][1]["fov"] = 180
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(NerfEditError, match=r"camera_path\[1\]: .* fov in \(0, 180\)"):
+        read_camera_path(tmp_path / "bad.json")
+
+
+def pixels(path):
+    return imageio.imread(path)[..., :3]
+
+
+def test_trajectories_render_the_frames_the_views_render(capsule_flow, tmp_path):
+    """``fixed`` (view 1) and ``path`` (a camera path of the test cameras, frame i ↔ camera i) give, frame by frame,
+    the pixels of the ``views`` render of that camera; ``orbit`` moves the camera; the videos hold every frame."""
+    flow, deformation = capsule_flow, capsule_flow / "edit" / "deformation.npz"
+    common = ["render", "--run", flow / "run", "--deformation", deformation]
+    run(*common, "--cameras", flow / "data", "--out", tmp_path / "views")
+    run(*common, "--trajectory", "fixed", "--cameras", flow / "data", "--view", 1, "--out", tmp_path / "fixed",
+        "--video", "mp4", "gif")  # fmt: skip
+    transforms = read_transforms(flow / "data", "test")
+    names = [p.with_suffix(".png").name for p in transforms.image_paths]
+    for f in range(3):
+        assert np.array_equal(
+            pixels(tmp_path / "fixed" / f"frame_{f:04d}.png"), pixels(tmp_path / "views" / f"frame_{f:04d}" / names[1])
+        )
+    assert len(imageio.mimread(tmp_path / "fixed" / "animation.gif")) == 3
+    with imageio.get_reader(tmp_path / "fixed" / "animation.mp4") as video:
+        shot = video.get_data(2)
+        assert video.count_frames() == 3 and shot.shape[:2] == (24, 24)
+    assert np.abs(shot.astype(float) - pixels(tmp_path / "fixed" / "frame_0002.png")).mean() < 8  # lossy H.264
+    (tmp_path / "path.json").write_text(json.dumps(camera_path(transforms)))
+    run(
+        *common,
+        "--trajectory",
+        "path",
+        "--cameras",
+        tmp_path / "path.json",
+        "--frame",
+        "0:2",
+        "--out",
+        tmp_path / "path",
+    )
+    for f in range(2):
+        assert np.array_equal(
+            pixels(tmp_path / "path" / f"frame_{f:04d}.png"), pixels(tmp_path / "views" / f"frame_{f:04d}" / names[f])
+        )
+    run(*common, "--trajectory", "orbit", "--size", 16, "--frame", "0", "--out", tmp_path / "orbit")
+    assert pixels(tmp_path / "orbit" / "frame_0000.png").shape == (16, 16, 3)
+
+
+def test_resume_refuses_other_settings_and_trajectories_check_their_cameras(capsule_flow, tmp_path, capsys):
+    flow, deformation = capsule_flow, capsule_flow / "edit" / "deformation.npz"
+    common = ["render", "--run", flow / "run", "--deformation", deformation, "--out", tmp_path / "out"]
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / ".nerfedit-partial").write_text(json.dumps({"key": "0123456789abcdef", "shots": 3}))
+    assert main([str(a) for a in common + ["--trajectory", "orbit", "--resume"]]) == 2
+    assert "made with other settings" in capsys.readouterr().err
+    assert main([str(a) for a in common + ["--trajectory", "path", "--cameras", flow / "data"]]) == 2
+    assert "has 2 cameras for 3 frames" in capsys.readouterr().err
+    assert main([str(a) for a in common + ["--trajectory", "fixed", "--cameras", flow / "data", "--view", 5]]) == 2
+    assert "--view: 5 is out of range" in capsys.readouterr().err
+
+
+def test_ray_frames_equal_the_local_ones_and_survive_a_killed_worker(capsule_flow):
+    """A local Ray cluster (2 CPUs, 2 actors): the frames are bit-identical to the local executor's; SIGKILL of the
+    actor that still holds frames after the first arrives restarts it and its frames are retried."""
+    ray = pytest.importorskip("ray")
+    job = RenderJob(capsule_flow / "run", capsule_flow / "edit" / "deformation.npz", 1, threads=1)
+    cameras, _ = trajectory("fixed", range(6), cameras=capsule_flow / "data", view=0)
+    shots = [(f % 3, cameras[f]) for f in range(6)]
+    threads = torch.get_num_threads()
+    try:
+        local = dict(LocalExecutor(job).map(shots))  # with the job's one thread, like each actor
+    finally:
+        torch.set_num_threads(threads)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        with pytest.raises(
+            NerfEditError, match=r"--workers: 3 actors × 1 torch threads need 3 CPUs, the cluster has 2"
+        ):
+            RayExecutor(job, workers=3)
+        executor = RayExecutor(job, workers=2)
+        pids = ray.get([actor.pid.remote() for actor in executor.actors])
+        got = {}
+        for index, image in executor.map(shots):
+            if not got:  # shots go round-robin: the actor of shot index + 1 still has work
+                os.kill(pids[(index + 1) % 2], signal.SIGKILL)
+            got[index] = image
+        executor.close()
+    finally:
+        ray.shutdown()
+    assert sorted(got) == list(range(6))
+    assert all(np.array_equal(got[i], local[i]) for i in range(6))
