@@ -99,6 +99,7 @@ class RayExecutor:
             raise NerfEditError('--executor ray: Ray is not installed (pip install "nerfedit[ray]")') from None
         self.ray, self.started = ray, not ray.is_initialized()
         if self.started:
+            _check_reachable(address)
             try:
                 ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
             except (ConnectionError, RuntimeError, ValueError) as exc:
@@ -129,6 +130,22 @@ class RayExecutor:
             self.ray.kill(actor)
         if self.started:
             self.ray.shutdown()
+
+
+def _check_reachable(address: str | None, timeout: float = 3.0) -> None:
+    """A ``host:port`` or ``ray://host:port`` address must accept a TCP connection within ``timeout`` seconds (Ray
+    itself keeps retrying for minutes); ``None`` and ``auto`` are left to Ray."""
+    import socket
+
+    if address is None or address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise NerfEditError(f"--ray-address: expected HOST:PORT, ray://HOST:PORT or auto, got {address!r}")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise NerfEditError(f"--ray-address: cannot reach a Ray cluster at {address!r} ({exc})") from None
 
 
 def make_executor(kind: str, job: RenderJob, address: str | None = None, workers: int | None = None):

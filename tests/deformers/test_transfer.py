@@ -272,3 +272,18 @@ def test_registered_as_entry_point():
     from nerfedit_plugin.registry import DEFORMERS, discover
 
     assert discover().config_class(DEFORMERS, "transfer") is TransferConfig
+
+
+@pytest.mark.parametrize("name", ["transfer_capsule_bend.json", "transfer_capsule_to_remeshed.json"])
+def test_example_sequences_lift_without_inverted_tets(name, tmp_path, proxy_cache):
+    """``nerfedit edit`` of each example spec onto its target: every lifted frame is free of inverted tets."""
+    from nerfedit_plugin.cli.app import main
+
+    spec = json.loads((CONFIGS / name).read_text())
+    mesh = CONFIGS / "transfer" / ("capsule_remeshed.ply" if "remeshed" in name else "capsule_rest.ply")
+    argv = ["edit", "--mesh", mesh, "--deformer", "transfer", "--edit", CONFIGS / name, "--out", tmp_path / "edit",
+            "--cache-dir", proxy_cache]  # fmt: skip
+    assert main([str(a) for a in argv]) == 0
+    report = json.loads((tmp_path / "edit" / "report.json").read_text())
+    assert len(report["per_frame"]) == report["frames"] > 1 and spec["source_frames"]
+    assert all(frame["inverted_tets"] == 0 for frame in report["per_frame"])

@@ -5,6 +5,7 @@ import json
 import math
 import os
 import signal
+import sys
 
 import imageio.v2 as imageio
 import numpy as np
@@ -153,3 +154,19 @@ def test_ray_frames_equal_the_local_ones_and_survive_a_killed_worker(capsule_flo
         ray.shutdown()
     assert sorted(got) == list(range(6))
     assert all(np.array_equal(got[i], local[i]) for i in range(6))
+
+
+def test_ray_problems_are_one_line_errors(capsule_flow, tmp_path, capsys, monkeypatch):
+    common = ["render", "--run", capsule_flow / "run", "--deformation", capsule_flow / "edit" / "deformation.npz",
+              "--trajectory", "fixed", "--cameras", capsule_flow / "data", "--out", tmp_path / "out"]  # fmt: skip
+    for extra, message in [
+        (["--executor", "ray", "--ray-address", "127.0.0.1:1"], "--ray-address: cannot reach a Ray cluster"),
+        (["--executor", "ray", "--ray-address", "nowhere"], "--ray-address: expected HOST:PORT"),
+        (["--workers", "2"], "--ray-address / --workers: only with --executor ray"),
+    ]:
+        assert main([str(a) for a in common + extra]) == 2
+        assert message in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if Ray were not installed
+    assert main([str(a) for a in common + ["--executor", "ray"]]) == 2
+    assert 'Ray is not installed (pip install "nerfedit[ray]")' in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
