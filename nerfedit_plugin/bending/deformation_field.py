@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from nerfedit_plugin.bending.locate import TetLocator, box_cells
+from nerfedit_plugin.bending.locate import TetLocator, face_pairs
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.io.atomic import atomic_path
 
@@ -87,24 +87,20 @@ def _near_grid(deformed: TetLocator, rest: TetLocator) -> tuple[torch.Tensor, to
     a cell: a box of T' (``deformed``), padded by 10⁻³ cell, touches it and a tet of T' may reach it
     (:meth:`TetLocator.reach_cells`); bit 2: the same for T; bit 4: every point of the cell is inside T
     (:meth:`TetLocator.covered_cells`). Points in a cell without bit 1 (2) are outside every tet of T' (T)."""
-    boxes = [locator.boxes() for locator in (deformed, rest)]
-    lo, hi = torch.cat([box[0] for box in boxes]), torch.cat([box[1] for box in boxes])
-    dtype, device, side = deformed.dtype, lo.device, NEAR_CELLS + 2
+    bounds = [box for box in (deformed.box_bounds(), rest.box_bounds()) if box is not None]
+    dtype, device, side = deformed.dtype, deformed.device, NEAR_CELLS + 2
     mask = torch.zeros(side**3, dtype=torch.uint8, device=device)
-    if len(lo) == 0:
+    if not bounds:
         return torch.ones(3, dtype=dtype, device=device), torch.zeros(3, dtype=dtype, device=device), mask
-    origin, extent = lo.amin(0).to(dtype), (hi.amax(0) - lo.amin(0)).clamp_min(1e-12)
+    lo = torch.stack([box[0] for box in bounds]).amin(0).to(device)
+    hi = torch.stack([box[1] for box in bounds]).amax(0).to(device)
+    origin, extent = lo.to(dtype), (hi - lo).clamp_min(1e-12)
     scale = (NEAR_CELLS * (1 - 1e-6) / extent).to(dtype)
     # u = x scale64 + offset64 in float64: the map the points take, up to their rounding error
     scale64, offset64 = scale.to(torch.float64), 1.0 - origin.to(torch.float64) * scale.to(torch.float64)
-    strides = torch.tensor([side * side, side, 1], device=device)
-    for bit, locator, (box_lo, box_hi) in zip((1, 2), (deformed, rest), boxes):
-        first = (box_lo * scale64 + offset64 - 1e-3).floor().long().clamp(0, side - 1)
-        last = (box_hi * scale64 + offset64 + 1e-3).floor().long().clamp(0, side - 1)
-        _, ijk = box_cells(first, last)
-        marked = torch.zeros(side**3, dtype=torch.bool, device=device)
-        marked[(ijk * strides).sum(1)] = True
-        mask |= (marked & locator.reach_cells(scale64, offset64, side)).to(torch.uint8) * bit
+    for bit, locator in zip((1, 2), (deformed, rest)):
+        marked = locator.boxed_cells(scale64, offset64, side) & locator.reach_cells(scale64, offset64, side)
+        mask |= marked.to(torch.uint8) * bit
     mask |= rest.covered_cells(scale64, offset64, side).to(torch.uint8) * 4
     return scale, origin, mask
 
@@ -143,6 +139,7 @@ class DeformationField:
         self._still: dict[int, np.ndarray] = {}
         self._moved: dict[int, np.ndarray | None] = {}
         self._rest_locator: TetLocator | None = None
+        self._face_pairs: torch.Tensor | None = None  # the tets' shared faces (topology only), for every locator
 
     @property
     def n_frames(self) -> int:
@@ -192,7 +189,7 @@ class DeformationField:
             ok = (torch.linalg.det(edges) != 0) & ~still  # the others get A_t = I
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
-            locator = TetLocator(deformed, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel)
+            locator = self._locator(deformed)
             near = _near_grid(locator, self._rest())
             self._frames[frame] = _Frame(
                 locator,
@@ -205,10 +202,16 @@ class DeformationField:
 
     def _rest(self) -> TetLocator:
         if self._rest_locator is None:
-            self._rest_locator = TetLocator(
-                self.rest_vertices, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel
-            )
+            self._rest_locator = self._locator(self.rest_vertices)
         return self._rest_locator
+
+    def _locator(self, vertices) -> TetLocator:
+        """A point locator of the tets on ``vertices`` (the rest or a deformed proxy), sharing the face pairs."""
+        if self._face_pairs is None:
+            self._face_pairs = face_pairs(torch.as_tensor(self.tets, device=self.device))
+        return TetLocator(
+            vertices, self.tets, dtype=self.dtype, device=self.device, kernel=self.kernel, face_pairs=self._face_pairs
+        )
 
     def bend(
         self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True

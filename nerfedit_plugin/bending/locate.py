@@ -157,7 +157,9 @@ class TetLocator:
     its barycentrics point to, stopping as soon as a safe tet accepts it deeply; the others are finished by testing
     their whole cell list. ``kernel``: ``"torch"`` runs the walk vectorised over chunks of ``chunk`` points on any
     device (CPU or CUDA); ``"numba"`` (the default on the CPU, :mod:`nerfedit_plugin.bending._locate_kernel`) walks each
-    point in a compiled loop, several times faster; both give the same answer bit for bit.
+    point in a compiled loop, several times faster; both give the same answer bit for bit. The grid is built by
+    numba kernels with ``"numba"`` and vectorised in torch otherwise (the same grid bit for bit). ``face_pairs``:
+    :func:`face_pairs` of ``tets``, to share it between locators of the same tets.
     """
 
     def __init__(
@@ -171,6 +173,7 @@ class TetLocator:
         chunk: int | None = None,
         rounds: int = 3,
         kernel: str = "auto",
+        face_pairs: torch.Tensor | None = None,
     ):
         self._table = table = _TetTable(vertices, tets, dtype, device)
         self.dtype, self.device, self.eps = table.dtype, table.device, table.eps
@@ -189,10 +192,21 @@ class TetLocator:
         self._strides = strides.tolist()
         self._offset = float(strides.sum())
 
-        cell, tet, depth, ijk = self._register(ids, shape, strides)
         n_cells = int(padded.prod())
-        self._neighbours = _face_neighbours(table.tets, table.usable)
+        self._neighbours = _face_neighbours(table.tets, table.usable, face_pairs)
         self._neighbours_t = self._neighbours.t().contiguous()  # (4,K)
+        if self.kernel == "numba":
+            safe = self._build_compiled(ids, shape, strides, n_cells)
+        else:
+            safe = self._build_torch(ids, shape, strides, n_cells)
+        # Per tet: the depth that makes an acceptance final (inf for unsafe tets: never) and the walk's neighbours.
+        self._deep = torch.where(safe, DEEP, torch.inf).to(dtype)
+        self._accept = torch.where(table.usable, -self.eps, torch.inf).to(dtype)  # membership: any acceptance
+
+    def _build_torch(self, ids: torch.Tensor, shape: torch.Tensor, strides: torch.Tensor, n_cells: int) -> torch.Tensor:
+        """The grid in torch (any device): cell lists, sub-cell masks, octant primaries; returns the safe tets."""
+        table = self._table
+        cell, tet, depth, ijk = self._register(ids, shape, strides)
         # Sub-cell masks matter only where the mesh ends: cells holding a tet with a boundary face; every other
         # cell keeps all 64 bits (always conservative).
         touched = torch.zeros(n_cells, dtype=torch.bool, device=self.device)
@@ -220,10 +234,72 @@ class TetLocator:
         primary.scatter_reduce_(0, key[winner], tet.repeat_interleave(8)[winner], "amin")
         self._octant_primary = primary.to(torch.int32)
         self._entry_tet = tet
-        # Per tet: the depth that makes an acceptance final (inf for unsafe tets: never) and the walk's neighbours.
-        safe = self._safe_tets(starts, lengths, tet)
-        self._deep = torch.where(safe, DEEP, torch.inf).to(dtype)
-        self._accept = torch.where(table.usable, -self.eps, torch.inf).to(dtype)  # membership: any acceptance
+        return self._safe_tets(starts, lengths, tet)
+
+    def _build_compiled(self, ids: torch.Tensor, shape: torch.Tensor, strides: torch.Tensor, n_cells: int):
+        """:meth:`_build_torch` in numba kernels (:mod:`nerfedit_plugin.bending._locate_kernel`, CPU): the same
+        tests in the same float64 expressions, so the same grid bit for bit (the tests compare the two builds)."""
+        from nerfedit_plugin.bending._locate_kernel import (
+            cell_lists,
+            cell_masks,
+            launch,
+            register_cells,
+            unsafe_tets,
+        )
+
+        table, k = self._table, len(self._table)
+        corners, grads = table.corners.numpy(), table.grads.numpy()
+        tolerance = table.tolerance.numpy()
+        h = 1 / self._inv.to(torch.float64)
+        if len(ids):
+            first = self._cell_coords(table.box_lo[ids]).to(torch.int64).clamp_min(0)
+            last = torch.minimum(self._cell_coords(table.box_hi[ids]).to(torch.int64), shape - 1)
+        else:
+            first = last = torch.zeros((0, 3), dtype=torch.int64)
+        lo = self._lo.to(torch.float64).numpy()
+        ijk, tet, depth = register_cells(
+            ids.numpy(), first.numpy(), last.numpy(), corners, grads, tolerance, lo, h.numpy()
+        )
+        cell = (ijk + 1) @ strides.numpy()
+        start, count, order, primary = cell_lists(cell, tet, depth, n_cells, k)
+        # sub-cell masks (cells holding a tet with a boundary face; see _build_torch)
+        s = _SUB
+        box_lo = torch.floor(self._grid_coords(table.box_lo) * s).to(torch.int64).numpy()
+        box_hi = torch.floor(self._grid_coords(table.box_hi) * s).to(torch.int64).numpy()
+        size = 1 / float(self._inv[0])  # cubic cells; _submasks computes in float32 what involves it and a tensor
+        offset = (((torch.arange(s) + 0.5) / s - 0.5) * size).to(torch.float64).numpy()
+        boundary = (self._neighbours < 0).any(1).numpy()
+        mask = np.empty(n_cells, dtype=np.int64)
+        mask_args = (
+            start,
+            count,
+            order,
+            ijk,
+            tet,
+            corners,
+            grads,
+            tolerance,
+            boundary,
+            box_lo,
+            box_hi,
+            lo,
+            size,
+            offset,
+        )
+        launch(cell_masks, *mask_args, mask)
+        self._cell_start, self._cell_count = torch.from_numpy(start), torch.from_numpy(count)
+        self._cell_mask = torch.from_numpy(mask)
+        self._octant_primary = torch.from_numpy(primary)
+        self._entry_tet = torch.from_numpy(tet[order])
+        # safe tets: each tet against every lower-index tet sharing a cell with it
+        tet_start = np.zeros(k + 1, dtype=np.int64)
+        np.cumsum(np.bincount(tet, minlength=k), out=tet_start[1:])
+        unsafe = np.zeros(k, dtype=np.bool_)
+        error = table.error.numpy()
+        launch(
+            unsafe_tets, cell, tet_start, start, count, self._entry_tet.numpy(), corners, error, tolerance, DEEP, unsafe
+        )
+        return table.usable & ~torch.from_numpy(unsafe)
 
     @property
     def n_tets(self) -> int:
@@ -269,6 +345,51 @@ class TetLocator:
         covered = torch.zeros(side**3, dtype=torch.bool, device=device)
         if not table.usable.any():
             return covered
+        good, (a, b, c, normal), bounds = self._good_boundary
+        scale, offset = scale.to(device=device, dtype=torch.float64), offset.to(device=device, dtype=torch.float64)
+        box = bounds * scale + offset
+        first = [max(1, int(box[0, i])) for i in range(3)]
+        last = [min(side - 1, int(box[1, i]) + 1) for i in range(3)]
+        strides = torch.tensor([side * side, side, 1], device=device)
+        if self.kernel == "numba":
+            from nerfedit_plugin.bending._locate_kernel import mark_covered, touch_faces, untouched_centres
+
+            scale64, offset64 = scale.numpy(), offset.numpy()
+            touched = np.zeros(side**3, dtype=np.bool_)
+            touch_faces(a.numpy(), b.numpy(), c.numpy(), normal.numpy(), scale64, offset64, side, touched)
+            bounds = np.asarray([first, last], dtype=np.int64)
+            cells, centres = untouched_centres(bounds[0], bounds[1], touched, scale64, offset64, side)
+            found = self.member(torch.from_numpy(centres)).numpy()
+            mark = covered.numpy()
+            mark_covered(cells, centres, found, good.numpy(), table.corners.numpy(), table.grads.numpy(), mark)
+            return covered
+        # cells meeting the boundary faces (box overlap, then the plane against the cell grown by the padding)
+        u = [p * scale + offset for p in (a, b, c)]
+        lo = (torch.minimum(torch.minimum(u[0], u[1]), u[2]) - 1e-3).floor().long().clamp(0, side - 1)
+        hi = (torch.maximum(torch.maximum(u[0], u[1]), u[2]) + 1e-3).floor().long().clamp(0, side - 1)
+        owner, ijk = box_cells(lo, hi)
+        normal_u = normal / scale  # n·x = Σ (n_k / scale_k) (u_k - offset_k)
+        distance = ((ijk + 0.5 - u[0][owner]) * normal_u[owner]).sum(1).abs()
+        reach = 0.5 * (1 + 2e-3) * normal_u[owner].abs().sum(1) * (1 + 1e-9)
+        touched = torch.zeros(side**3, dtype=torch.bool, device=device)
+        touched[(ijk[distance <= reach] * strides).sum(1)] = True
+        # untouched inner cells: inside when the centre lies in a tet of G
+        axes = [torch.arange(first[i], last[i], device=device) for i in range(3)]
+        inner = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        inner = inner[~touched[(inner * strides).sum(1)]]
+        centres = (inner + 0.5 - offset) / scale
+        found = self.member(centres)
+        hit = torch.nonzero(found >= 0).squeeze(1)
+        t = found[hit]
+        inside = good[t] & (table.exact_bary(t, centres[hit, None])[:, 0].amin(1) >= 1e-9)
+        covered[(inner[hit[inside]] * strides).sum(1)] = True
+        return covered
+
+    @functools.cached_property
+    def _good_boundary(self) -> tuple[torch.Tensor, tuple[torch.Tensor, ...], torch.Tensor]:
+        """``(good (K,) bool, (a, b, c, normal) (F,3) float64, bounds (2,3))``: the tets of G (:meth:`covered_cells`),
+        the faces that bound it (corners and ``(b − a) × (c − a)``) and the box of all tets, computed once."""
+        table, device = self._table, self.device
         good = table.usable & (table.error <= self.eps / 2)
         k = len(table)
         tet = torch.arange(k, device=device).repeat_interleave(4)
@@ -286,31 +407,43 @@ class TetLocator:
         other = ((table.corners[there, off] - a) * normal).sum(1)
         closed = (across >= 0) & good[there] & (own * other < 0)
         boundary = torch.nonzero(good[tet] & ~closed).squeeze(1)
-        # cells meeting the boundary faces (box overlap, then the plane against the cell grown by the padding)
-        u = [p[boundary] * scale + offset for p in (a, b, c)]
-        first = (torch.minimum(torch.minimum(u[0], u[1]), u[2]) - 1e-3).floor().long().clamp(0, side - 1)
-        last = (torch.maximum(torch.maximum(u[0], u[1]), u[2]) + 1e-3).floor().long().clamp(0, side - 1)
-        owner, ijk = box_cells(first, last)
-        normal_u = normal[boundary] / scale  # n·x = Σ (n_k / scale_k) (u_k - offset_k)
-        distance = ((ijk + 0.5 - u[0][owner]) * normal_u[owner]).sum(1).abs()
-        reach = 0.5 * (1 + 2e-3) * normal_u[owner].abs().sum(1) * (1 + 1e-9)
-        strides = torch.tensor([side * side, side, 1], device=device)
-        touched = torch.zeros(side**3, dtype=torch.bool, device=device)
-        touched[(ijk[distance <= reach] * strides).sum(1)] = True
-        # untouched inner cells: inside when the centre lies in a tet of G
-        box = torch.stack([table.corners.amin((0, 1)), table.corners.amax((0, 1))]) * scale + offset
-        axes = [
-            torch.arange(max(1, int(box[0, i])), min(side - 1, int(box[1, i]) + 1), device=device) for i in range(3)
-        ]
-        inner = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        inner = inner[~touched[(inner * strides).sum(1)]]
-        centres = (inner + 0.5 - offset) / scale
-        found = self.member(centres)
-        hit = torch.nonzero(found >= 0).squeeze(1)
-        t = found[hit]
-        inside = good[t] & (table.exact_bary(t, centres[hit, None])[:, 0].amin(1) >= 1e-9)
-        covered[(inner[hit[inside]] * strides).sum(1)] = True
-        return covered
+        bounds = torch.stack([table.corners.amin((0, 1)), table.corners.amax((0, 1))])
+        return good, tuple(x[boundary].contiguous() for x in (a, b, c, normal)), bounds
+
+    def box_bounds(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(lo (3,), hi (3,))`` float64: the bounds of :meth:`boxes` (None without boxes)."""
+        if self.kernel == "numba":
+            from nerfedit_plugin.bending._locate_kernel import box_extent
+
+            lo, hi, n = box_extent(self._cell_mask.numpy(), *self._box_frame())
+            return (torch.from_numpy(lo), torch.from_numpy(hi)) if n else None
+        lo, hi = self.boxes()
+        return (lo.amin(0), hi.amax(0)) if len(lo) else None
+
+    def boxed_cells(self, scale: torch.Tensor, offset: torch.Tensor, side: int) -> torch.Tensor:
+        """``(side³,)`` bool: the cells of the grid ``u = x scale + offset`` (``u`` clamped to ``[0, side)``; float64
+        ``scale``, ``offset``) that a box of :meth:`boxes`, grown by 10⁻³ of a cell, meets."""
+        if self.kernel == "numba":
+            from nerfedit_plugin.bending._locate_kernel import mark_boxes
+
+            marked = np.zeros(side**3, dtype=np.bool_)
+            scale, offset = (x.to(torch.float64).numpy() for x in (scale, offset))
+            mark_boxes(self._cell_mask.numpy(), *self._box_frame(), scale, offset, side, marked)
+            return torch.from_numpy(marked)
+        box_lo, box_hi = self.boxes()
+        first = (box_lo * scale + offset - 1e-3).floor().long().clamp(0, side - 1)
+        last = (box_hi * scale + offset + 1e-3).floor().long().clamp(0, side - 1)
+        _, ijk = box_cells(first, last)
+        marked = torch.zeros(side**3, dtype=torch.bool, device=self.device)
+        marked[(ijk * torch.tensor([side * side, side, 1], device=self.device)).sum(1)] = True
+        return marked
+
+    def _box_frame(self) -> tuple[np.ndarray, ...]:
+        """``(padded shape, lo, sub-cell size, spans)`` as :meth:`boxes` computes them, for the compiled kernels."""
+        padded = np.asarray(self.grid_shape, dtype=np.int64) + 2
+        size = (1 / (_SUB * self._inv.to(torch.float64))).numpy()
+        spans = np.asarray([np.float32(_SUB + 0.02), np.float32(1.02)], dtype=np.float64)  # torch.full's float32
+        return padded, self._lo.to(torch.float64).numpy(), size, spans
 
     def reach_cells(self, scale: torch.Tensor, offset: torch.Tensor, side: int) -> torch.Tensor:
         """``(side³,)`` bool: the cells of the grid ``u = x scale + offset`` (as in :meth:`covered_cells`; ``u``
@@ -320,21 +453,24 @@ class TetLocator:
         layer whenever the box meets them, since they also take the points clamped into them. Compiled
         (:func:`~nerfedit_plugin.bending._locate_kernel.mark_reach`) on the CPU for any device: one pass over the cells
         of the tet boxes."""
-        from nerfedit_plugin.bending._locate_kernel import mark_reach
+        from nerfedit_plugin.bending._locate_kernel import launch, mark_reach
 
         table = self._table
-        ids = torch.nonzero(table.usable).squeeze(1).cpu()
-        scale, offset = scale.cpu().to(torch.float64), offset.cpu().to(torch.float64)
-        grads, origin = table.grads.cpu()[ids], table.corners.cpu()[ids, 0]
-        first = (table.box_lo.cpu()[ids] * scale + offset - 1e-3).floor().long().clamp(0, side - 1)
-        last = (table.box_hi.cpu()[ids] * scale + offset + 1e-3).floor().long().clamp(0, side - 1)
+        ids = np.flatnonzero(table.usable.cpu().numpy())
+        scale, offset = (x.cpu().to(torch.float64).numpy() for x in (scale, offset))
+        # numpy: small per-tet arrays, no thread pool to wake (the values are torch's, op for op)
+        grads, origin = table.grads.cpu().numpy()[ids], table.corners.cpu().numpy()[ids, 0]
+        first = np.floor(table.box_lo.cpu().numpy()[ids] * scale + offset - 1e-3).astype(np.int64).clip(0, side - 1)
+        last = np.floor(table.box_hi.cpu().numpy()[ids] * scale + offset + 1e-3).astype(np.int64).clip(0, side - 1)
         # b_i at the centre of cell ijk, (ijk + ½ − offset) / scale, is Σ_k slope_ik ijk_k + value_i
         slope = grads / scale
-        value = (grads * ((0.5 - offset) / scale - origin)[:, None]).sum(2)
+        centre = ((0.5 - offset) / scale - origin)[:, None]
+        value = (grads[..., 0] * centre[..., 0] + grads[..., 1] * centre[..., 1]) + grads[..., 2] * centre[..., 2]
         value[:, 0] += 1
-        value += (grads.abs() * ((0.5 + 1e-3) / scale)).sum(2) + 2 * table.tolerance.cpu()[ids, None]
+        grow = np.abs(grads) * ((0.5 + 1e-3) / scale)
+        value += ((grow[..., 0] + grow[..., 1]) + grow[..., 2]) + 2 * table.tolerance.cpu().numpy()[ids, None]
         reach = np.zeros(side**3, dtype=np.bool_)
-        mark_reach(first.numpy(), last.numpy(), slope.numpy(), value.numpy(), side, reach)
+        launch(mark_reach, first, last, slope, value, side, reach)
         return torch.from_numpy(reach).to(self.device)
 
     @property
@@ -608,8 +744,11 @@ def expand_ranges(counts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return owner, local
 
 
-def _face_neighbours(tets: torch.Tensor, usable: torch.Tensor) -> torch.Tensor:
-    """``(K,4)`` int32: the usable tet across the face opposite vertex ``i`` of each tet, -1 if none."""
+def face_pairs(tets) -> torch.Tensor:
+    """``(2,P)`` int64: the pairs of face slots ``4 t + i`` (the face of tet ``t`` opposite its vertex ``i``) with
+    the same three vertices. Depends on the topology only: a :class:`TetLocator` takes it (``face_pairs=``) to share
+    it between locators of the same tets (the frames of a :class:`DeformationField`)."""
+    tets = _as_tensor(tets, torch.int64)
     k = len(tets)
     faces = torch.stack([tets[:, list(f)] for f in _FACES], 1).sort(2).values.reshape(-1, 3)  # (4K,3)
     n = int(tets.max()) + 1 if k else 1
@@ -617,7 +756,14 @@ def _face_neighbours(tets: torch.Tensor, usable: torch.Tensor) -> torch.Tensor:
     order = torch.argsort(key)
     key = key[order]
     same = torch.nonzero(key[1:] == key[:-1]).squeeze(1)
-    a, b = order[same], order[same + 1]
+    return torch.stack([order[same], order[same + 1]])
+
+
+def _face_neighbours(tets: torch.Tensor, usable: torch.Tensor, pairs: torch.Tensor | None = None) -> torch.Tensor:
+    """``(K,4)`` int32: the usable tet across the face opposite vertex ``i`` of each tet, -1 if none (``pairs``:
+    :func:`face_pairs` of ``tets``, computed if None)."""
+    k = len(tets)
+    a, b = face_pairs(tets) if pairs is None else pairs.to(tets.device)
     neighbours = torch.full((4 * k,), -1, dtype=torch.int64, device=tets.device)
     neighbours[a], neighbours[b] = b // 4, a // 4
     neighbours = torch.where(usable[neighbours.clamp_min(0)] & (neighbours >= 0), neighbours, -1)

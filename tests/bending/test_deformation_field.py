@@ -348,3 +348,19 @@ def test_cuda_to_canonical_matches_cpu(proxy):
 def test_unknown_kernel_is_refused_at_construction(proxy):
     with pytest.raises(ValueError, match="kernel"):
         DeformationField(proxy.vertices, proxy.tets, proxy.vertices[None], kernel="cython")
+
+
+@pytest.mark.parametrize("edit", ["lifted", "folded"])
+def test_compiled_frame_build_equals_torch_build(proxy, lifted, edit):
+    """The near grid of a frame built by the compiled kernels (the CPU default) equals the torch build bit for bit
+    (scale, origin, every bit of every cell), as does the frame's locator grid."""
+    deformed = lifted[0] if edit == "lifted" else folded(proxy.vertices)
+    frames = [
+        DeformationField(proxy.vertices, proxy.tets, deformed[None], kernel=kernel)._frame(0)
+        for kernel in ("numba", "torch")
+    ]
+    for a, b in zip(frames[0].near, frames[1].near):
+        assert torch.equal(a, b)
+    assert {1, 2, 4} <= {bit for bit in (1, 2, 4) if (frames[0].near[2] & bit).any()}
+    for name in ("_cell_mask", "_octant_primary", "_cell_start", "_cell_count", "_entry_tet", "_deep"):
+        assert torch.equal(getattr(frames[0].locator, name), getattr(frames[1].locator, name)), name

@@ -240,3 +240,62 @@ def test_reach_cells_hold_every_accepted_point(sphere_tets):
     assert len(accepted) > 1000
     ijk = (accepted.double() * scale + offset).floor().long().clamp(0, side - 1)
     assert reach[(ijk * torch.tensor([side * side, side, 1])).sum(1)].all()
+
+
+GRID_ARRAYS = ("_cell_mask", "_octant_primary", "_cell_start", "_cell_count", "_entry_tet", "_deep", "_neighbours")
+
+
+def assert_same_grid(compiled: TetLocator, reference: TetLocator) -> None:
+    """Two locators of the same tets hold the same grid bit for bit: cell lists, sub-cell masks, octant primaries,
+    safe tets, walk neighbours, and the cells their grid queries report."""
+    assert compiled.grid_shape == reference.grid_shape
+    for name in GRID_ARRAYS:
+        assert torch.equal(getattr(compiled, name), getattr(reference, name)), name
+    for a, b in zip(compiled.boxes(), reference.boxes()):
+        assert torch.equal(a, b)
+    bounds = [locator.box_bounds() for locator in (compiled, reference)]
+    assert all(torch.equal(a, b) for a, b in zip(*bounds)) if bounds[0] else bounds[1] is None
+    scale, offset, side = anisotropic_grid(compiled._table.corners.reshape(-1, 3).numpy())
+    for query in ("boxed_cells", "reach_cells", "covered_cells"):
+        assert torch.equal(
+            getattr(compiled, query)(scale, offset, side), getattr(reference, query)(scale, offset, side)
+        )
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("case", ["sphere", "shaken", "overlapping", "coarse", "fine"])
+def test_compiled_build_equals_torch_build(sphere_tets, case, dtype):
+    """The oracle of the compiled build (numba kernels, the CPU default) is the vectorised torch build: the same
+    grid bit for bit on a real mesh, on one with inverted and overlapping tets (unsafe tets), on two overlapping
+    copies plus a zero-volume tet, and at other cell sizes."""
+    vertices, tets = sphere_tets
+    settings = {}
+    if case == "shaken":
+        vertices = vertices + np.random.default_rng(4).normal(0, 0.04, vertices.shape)
+    elif case == "overlapping":
+        grid, cube = kuhn_grid(3)
+        line = np.linspace(0, 1, 4)[:, None] * [1.0, 1.0, 0.0]
+        vertices = np.concatenate([grid, grid + [0.13, 0.05, -0.07], line])
+        tets = np.concatenate([cube + len(grid), cube, np.array([[0, 1, 2, 3]]) + 2 * len(grid)])
+    elif case in ("coarse", "fine"):
+        settings = {"cells_per_tet": 0.3 if case == "coarse" else 16.0}
+    compiled = TetLocator(vertices, tets, dtype=dtype, kernel="numba", **settings)
+    reference = TetLocator(vertices, tets, dtype=dtype, kernel="torch", **settings)
+    assert_same_grid(compiled, reference)
+    usable = compiled._table.usable
+    if case in ("shaken", "overlapping"):  # the separating-axis test found unsafe tets
+        assert torch.isinf(compiled._deep[usable]).any()
+    else:
+        assert torch.isfinite(compiled._deep[usable]).all()
+
+
+def test_compiled_build_of_degenerate_and_empty_meshes():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0.0]])
+    for kernel in ("numba", "torch"):
+        locator = TetLocator(vertices, np.array([[0, 1, 2, 3]]), kernel=kernel)
+        assert locator.n_entries == 0 and locator.box_bounds() is None
+        assert not locator.boxed_cells(torch.ones(3, dtype=torch.float64), torch.ones(3, dtype=torch.float64), 4).any()
+    assert_same_grid(
+        TetLocator(vertices, np.array([[0, 1, 2, 3]]), kernel="numba"),
+        TetLocator(vertices, np.array([[0, 1, 2, 3]]), kernel="torch"),
+    )
