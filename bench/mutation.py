@@ -1,6 +1,6 @@
 """Mutation testing (mutmut 3) of the pure-Python modules whose bugs hide behind identities: edit specs, skinning,
-cameras, metrics, mean value coordinates (and the lift, on request). The numba kernels are covered by their
-brute-force oracles instead.
+cameras, metrics, mean value coordinates and the lift (against its fast tests on Kuhn-grid proxies). The numba
+kernels are covered by their brute-force oracles instead.
 
 For each module mutmut mutates a copy of the source in a temporary work folder (never the repo tree: the folder is
 removed afterwards, also on Ctrl-C, unless ``--keep``) and runs that module's tests against every mutant.
@@ -13,7 +13,7 @@ minutes; then the total and every surviving non-equivalent mutant as a diff. ``-
 Requires ``mutmut==3.8.1`` (the ``test`` extra); installs nothing. Not fork-safe tools are tamed with one thread.
 
 Usage: ``python bench/mutation.py [--module NAME ...] [--max-minutes N] [--keep]`` (modules: the keys of
-:data:`MODULES`; default all but ``lift``).
+:data:`MODULES`; default all).
 """
 
 from __future__ import annotations
@@ -48,9 +48,10 @@ MODULES = {
     "cameras": Target("nerfedit_plugin/data/cameras.py", ("tests/data/test_cameras.py",)),
     "metrics": Target("nerfedit_plugin/training/metrics.py", ("tests/training/test_metrics.py",)),
     "mean_value": Target("deformers/cage/mean_value.py", ("tests/deformers/test_mean_value.py",)),
-    "lift": Target("nerfedit_plugin/edit/lift.py", ("tests/edit/test_lift.py",)),
+    # lift: the fast tests on Kuhn-grid proxies (tests/edit/test_lift.py builds pytetwild proxies: seconds each)
+    "lift": Target("nerfedit_plugin/edit/lift.py", ("tests/edit/test_lift_mutants.py",)),
 }
-DEFAULT = [name for name in MODULES if name != "lift"]
+DEFAULT = list(MODULES)
 
 
 @dataclass(frozen=True)
@@ -121,6 +122,51 @@ _STACK = "directions = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axi
 _CENTER = "center = np.asarray(center, dtype=np.float64)"
 _INDICES = 'return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)'
 _INT64 = "the values are Python ints already checked to fit int64, numpy's default integer on 64-bit Linux"
+_EINSUM = "einsum reads upper-case subscripts like lower-case ones: the same contraction"
+_ELEMENTS = "ArapSolver's default energy for tets is 'elements'"
+_OPPOSITE = "opposite = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1).reshape(-1, 2)"
+_SCATTER = "scatter = sp.csr_matrix((np.ones(3 * n), (faces.T.reshape(-1), np.arange(3 * n))), shape=(len(v), 3 * n))"
+_OFFSETS = 'offsets=np.einsum("fi,fi->f", normals, v[faces[:, 0]]),'
+_BARY = 'np.einsum("ki,ki->k", cage.normals[fi], np.cross(corners[:, (k + 1) % 3], corners[:, (k + 2) % 3]))'
+_NEAR = "np.greater(sin2, np.sqrt(NEAR_LINE * (1.0 - NEAR_LINE)), out=self.near)"
+_ON_EDGE = "on_edge = (cage.edges[:0, 0], cage.edges[:0, 0])"
+_TAKES = (
+    ("_Kernel._edges", 'np.take(dist, cage.edges[:, 0], axis=0, out=da, mode="clip")'),
+    ("_Kernel._edges", 'np.take(dist, cage.edges[:, 1], axis=0, out=db, mode="clip")'),
+    (
+        "_Kernel._faces",
+        'np.take(self.edge_q[q], self.opposite, axis=0, out=fq[q].reshape(3 * n_f, self.size), mode="clip")',
+    ),
+    (
+        "_Kernel._faces",
+        'np.take(self.dist, self.corners, axis=0, out=self.corner_d.reshape(3 * n_f, self.size), mode="clip")',
+    ),
+)
+_TAKE = (
+    "every index is in range (edges, corners and face edges index existing rows): mode 'raise' (None) takes the same"
+)
+_MV_RESHAPES = (
+    ("CageGeometry.of", _OPPOSITE, "reshape(-1, 2)", "reshape(-2, 2)"),
+    ("CageGeometry.of", _SCATTER, "faces.T.reshape(-1)", "faces.T.reshape(-2)"),
+    (
+        "_Kernel.__init__",
+        "self.corners = np.ascontiguousarray(cage.faces.T).reshape(-1)  # corner k of face f = row kF + f",
+        "reshape(-1)",
+        "reshape(-2)",
+    ),
+    (
+        "_Kernel.__init__",
+        "self.opposite = np.ascontiguousarray(cage.face_edges.T).reshape(-1)",
+        "reshape(-1)",
+        "reshape(-2)",
+    ),
+    ("_Kernel._faces", "w = cage.scatter @ self.stacked.reshape(-1, self.size)", "reshape(-1,", "reshape(-2,"),
+)
+_MV_POINTS = "points = np.asarray(points, dtype=np.float64) - cage.origin"
+_MV_FACES = "faces = np.asarray(faces, dtype=np.int64)"
+_MV_NEAR = "self.near = np.empty((n_e, size), dtype=bool)"
+_MV_POOL = "with ThreadPoolExecutor(max_workers=workers) as pool:  # numpy releases the GIL inside the kernels"
+_TINY = "differs only for a signed volume of exactly ±1e-9 × the mean rest volume"
 EQUIVALENT: tuple[Equivalent, ...] = (
     # metrics
     Equivalent("metrics", "psnr", 'return float("inf")', 'return float("INF")', "float() parses 'INF' as inf"),
@@ -279,6 +325,232 @@ EQUIVALENT: tuple[Equivalent, ...] = (
         "bounds = np.searchsorted(dominant[order], np.arange(weights.shape[1] + 1))",
         "bounds = np.searchsorted(dominant[order], np.arange(weights.shape[1] + 2))",
         "only bounds[0..J] are read; one more trailing bound changes nothing",
+    ),  # lift
+    Equivalent(
+        "lift",
+        "closest_point_displacements",
+        'return np.einsum("mk,mkd->md", bary, (moved - rest.vertices)[tri])',
+        'return np.einsum("MK,MKD->MD", bary, (moved - rest.vertices)[tri])',
+        _EINSUM,
+    ),
+    Equivalent(
+        "lift",
+        "knn3_displacements",
+        'return np.einsum("mk,mkd->md", weights, (moved - rest)[idx])',
+        'return np.einsum("MK,MKD->MD", weights, (moved - rest)[idx])',
+        _EINSUM,
+    ),
+    Equivalent(
+        "lift",
+        "Lift.report",
+        'flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0',
+        'flipped = np.einsum("IJ,IJ->I", self.rest_normals, face_normals(surface, self.rest.faces)) < 0',
+        _EINSUM,
+    ),
+    Equivalent(
+        "lift",
+        "knn3_displacements",
+        "weights = 1.0 / np.maximum(dist, 1e-12)",
+        "weights = 2.0 / np.maximum(dist, 1e-12)",
+        "the common factor 2 (a power of two: exact) cancels in the normalisation",
+    ),
+    Equivalent("lift", "Lift.__init__", 'energy="elements",', "energy=None,", _ELEMENTS),
+    Equivalent("lift", "Lift.__init__", 'energy="elements",', "", _ELEMENTS),
+    *(
+        Equivalent("lift", "Lift.__init__", line, line.replace('energy="elements", ', b), _ELEMENTS)
+        for line in ('self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)',)
+        for b in ("energy=None, ", "")
+    ),
+    Equivalent(
+        "lift",
+        "Lift.folds",
+        "return int(np.count_nonzero(tet_signed_volumes(deformed, self.proxy.tets) <= tiny))",
+        "return int(np.count_nonzero(tet_signed_volumes(deformed, self.proxy.tets) < tiny))",
+        _TINY,
+    ),
+    Equivalent(
+        "lift",
+        "Lift.report",
+        "inverted_tets=int(np.count_nonzero(volumes < -tiny)),",
+        "inverted_tets=int(np.count_nonzero(volumes <= -tiny)),",
+        _TINY,
+    ),
+    Equivalent(
+        "lift",
+        "Lift.report",
+        "degenerate_tets=int(np.count_nonzero(np.abs(volumes) <= tiny)),",
+        "degenerate_tets=int(np.count_nonzero(np.abs(volumes) < tiny)),",
+        _TINY,
+    ),
+    # mean_value
+    Equivalent(
+        "mean_value",
+        "mean_value_coordinates",
+        "chunk_size: int = 64,",
+        "chunk_size: int = 65,",
+        "each point's column is computed on its own, whatever chunk it falls in",
+    ),
+    Equivalent(
+        "mean_value",
+        "mean_value_coordinates",
+        "workers: int = 2,",
+        "workers: int = 3,",
+        "threads only share out the chunks: each column is computed alike",
+    ),
+    *(
+        Equivalent(
+            "mean_value",
+            "mean_value_coordinates",
+            _MV_POINTS,
+            _MV_POINTS.replace("dtype=np.float64", b),
+            "subtracting the float64 cage origin promotes float32 or integer points exactly",
+        )
+        for b in ("dtype=None", "")
+    ),
+    Equivalent(
+        "mean_value",
+        "mean_value_coordinates",
+        "starts = range(0, len(points), chunk_size)",
+        "starts = range(0, len(points), )",
+        "chunks then start at every point and overlap: columns are recomputed with the same values (only slower)",
+    ),
+    Equivalent(
+        "mean_value",
+        "mean_value_coordinates",
+        "workers = max(1, min(workers, len(starts)))",
+        "workers = max(2, min(workers, len(starts)))",
+        "a second worker with no chunk left (starts[1::2] empty) computes nothing",
+    ),
+    Equivalent(
+        "mean_value",
+        "mean_value_coordinates",
+        _MV_POOL,
+        _MV_POOL.replace("max_workers=workers", "max_workers=None"),
+        "the pool is given exactly `workers` tasks: further threads stay idle",
+    ),
+    *(
+        Equivalent(
+            "mean_value",
+            "CageGeometry.of",
+            _MV_FACES,
+            _MV_FACES.replace("dtype=np.int64", b),
+            "faces are only used as indices: any integer dtype indexes alike",
+        )
+        for b in ("dtype=None", "")
+    ),
+    *(Equivalent("mean_value", f, line, line.replace(a, b), _RESHAPE) for f, line, a, b in _MV_RESHAPES),
+    Equivalent(
+        "mean_value",
+        "CageGeometry.of",
+        _OPPOSITE,
+        _OPPOSITE.replace("axis=1)", "axis=2)"),
+        "the (F,2,3) stack read in pairs gives each face's corner pairs (1,2), (0,2), (0,1): the same sorted edges",
+    ),
+    Equivalent(
+        "mean_value",
+        "CageGeometry.of",
+        "edges, inverse = np.unique(np.sort(opposite, axis=1), axis=0, return_inverse=True)",
+        "edges, inverse = np.unique(np.sort(opposite, ), axis=0, return_inverse=True)",
+        "np.sort sorts along the last axis by default: axis 1 of the (3F,2) pairs",
+    ),
+    Equivalent(
+        "mean_value",
+        "CageGeometry.of",
+        "normals = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])",
+        "normals = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 1]])",
+        "(v1 - v0) x (v2 - v1) = (v1 - v0) x (v2 - v0): the same area normal (up to rounding)",
+    ),
+    Equivalent("mean_value", "CageGeometry.of", _OFFSETS, _OFFSETS.replace("fi,fi->f", "FI,FI->F"), _EINSUM),
+    Equivalent(
+        "mean_value",
+        "CageGeometry.of",
+        _OFFSETS,
+        _OFFSETS.replace("faces[:, 0]", "faces[:, 1]"),
+        "every corner lies in its face's plane: n . v1 = n . v0 (up to rounding)",
+    ),
+    Equivalent(
+        "mean_value",
+        "_Kernel.__call__",
+        "if n < self.size:  # last chunk: pad with copies of its last point",
+        "if n <= self.size:  # last chunk: pad with copies of its last point",
+        "a full chunk is padded with zero copies: the same array",
+    ),
+    *(
+        Equivalent(
+            "mean_value",
+            "_Kernel.__init__",
+            _MV_NEAR,
+            _MV_NEAR.replace("dtype=bool", b),
+            "float 0/1 flags, read only through logical_not(out=) and flatnonzero, select the same pairs",
+        )
+        for b in ("dtype=None", "")
+    ),
+    Equivalent(
+        "mean_value",
+        "_Kernel.__init__",
+        "self.p = np.empty((3, n_f, size))",
+        "self.p = np.empty((4, n_f, size))",
+        "the extra row is never read",
+    ),
+    Equivalent("mean_value", "_Kernel._degenerate", _BARY, _BARY.replace("ki,ki->k", "KI,KI->K"), _EINSUM),
+    Equivalent(
+        "mean_value",
+        "_Kernel._degenerate",
+        "inside = (bary >= -BARY_EPS).all(1)",
+        "inside = (bary > -BARY_EPS).all(1)",
+        "differs only for a barycentric of exactly -BARY_EPS",
+    ),
+    Equivalent(
+        "mean_value",
+        "_Kernel._degenerate",
+        "at_vertex = self.dist <= VERTEX_EPS * cage.scale",
+        "at_vertex = self.dist < VERTEX_EPS * cage.scale",
+        "differs only at a distance of exactly VERTEX_EPS x scale",
+    ),
+    Equivalent(
+        "mean_value",
+        "_Kernel._edges",
+        "close = behind[line_dist <= EDGE_EPS * cage.scale]  # on the segment",
+        "close = behind[line_dist < EDGE_EPS * cage.scale]  # on the segment",
+        "differs only at a distance of exactly EDGE_EPS x scale",
+    ),
+    *(
+        Equivalent("mean_value", f, line, line.replace(a, b), _TAKE)
+        for f, line in _TAKES
+        for a, b in ((', mode="clip")', ", mode=None)"), (', mode="clip")', ", )"))
+    ),
+    *(
+        Equivalent(
+            "mean_value",
+            "_Kernel._edges",
+            _NEAR,
+            _NEAR.replace("NEAR_LINE * (1.0 - NEAR_LINE)", b),
+            "moves where θ is recomputed from unit vectors (the accurate path, kept narrow for speed): a 1e-6 relative "
+            "shift changes nothing, a √2 one the coordinates by ≤ 4e-12 (measured), no on-edge decision (sin θ ≈ 1e-8)",
+        )
+        for b in ("NEAR_LINE / (1.0 - NEAR_LINE)", "NEAR_LINE * (1.0 + NEAR_LINE)", "NEAR_LINE * (2.0 - NEAR_LINE)")
+    ),
+    *(
+        Equivalent(
+            "mean_value",
+            "_Kernel._edges",
+            _ON_EDGE,
+            b,
+            "with no near pair the (edge, point) arrays stay without points: no column is overwritten",
+        )
+        for b in (
+            "on_edge = (cage.edges[:1, 0], cage.edges[:0, 0])",
+            "on_edge = (cage.edges[:0, 1], cage.edges[:0, 0])",
+            "on_edge = (cage.edges[:0, 0], cage.edges[:1, 0])",
+            "on_edge = (cage.edges[:0, 0], cage.edges[:0, 1])",
+        )
+    ),
+    Equivalent(
+        "mean_value",
+        "_Kernel._edges",
+        "behind = np.flatnonzero(cos_half < sin_half)  # θ ≈ π: x beside the segment, between its ends",
+        "behind = np.flatnonzero(cos_half <= sin_half)  # θ ≈ π: x beside the segment, between its ends",
+        "near pairs have θ within ~2e-3 of 0 or π: θ = 90° (cos θ/2 = sin θ/2) never occurs among them",
     ),
 )
 

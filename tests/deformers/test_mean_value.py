@@ -145,3 +145,177 @@ def test_points_on_the_cage_have_winding_one_half_and_vertices_interpolate():
     w, winding = mean_value_coordinates(points, V, F, return_winding=True)
     np.testing.assert_array_equal(winding, np.full(30, 0.5))
     np.testing.assert_array_equal(w[20:], np.eye(len(V))[F[faces, 2]])
+
+
+# ---- the tolerance bands (mutation tests: each band is probed just inside and just outside) -------------------------
+def _lowest_faces(vertex_ids):
+    """For each vertex, the lowest-indexed face on it and its corner slot there."""
+    faces = np.array([int(np.flatnonzero((F == v).any(1))[0]) for v in vertex_ids])
+    return faces, np.array([int(np.flatnonzero(F[f] == v)[0]) for f, v in zip(faces, vertex_ids)])
+
+
+def _toward_centroid(vertices, faces, vertex_ids):
+    """Unit vectors in each face's plane from the vertex toward the face's centroid, and that distance."""
+    toward = vertices[F[faces]].mean(1) - vertices[vertex_ids]
+    length = np.linalg.norm(toward, axis=1, keepdims=True)
+    return toward / length, length
+
+
+@pytest.mark.parametrize("size", [1.0, 0.01], ids=["unit", "small"])
+def test_vertex_band(size):
+    """Within VERTEX_EPS × the cage's bbox diagonal of a vertex (0.95×) the coordinates are that vertex's indicator;
+    at 1.05× (a point in the plane of the vertex's lowest-indexed face, toward its centroid) they are that face's
+    barycentrics (1 − 2s, s, s) (the face band holds), not an indicator. The small cage (diagonal < 1) keeps the
+    band relative."""
+    from deformers.cage.mean_value import VERTEX_EPS
+
+    vertices, scale = V * size, SCALE * size
+    ids = np.arange(0, len(V), 9)
+    faces, slots = _lowest_faces(ids)
+    unit, length = _toward_centroid(vertices, faces, ids)
+    for factor in (0.95, 1.05):
+        d = factor * VERTEX_EPS * scale
+        w = mean_value_coordinates(vertices[ids] + d * unit, vertices, F)
+        if factor < 1:
+            np.testing.assert_array_equal(w, np.eye(len(V))[ids])
+        else:
+            s = d / (3 * length[:, 0])
+            expected = np.zeros_like(w)
+            expected[np.arange(len(ids))[:, None], F[faces]] = s[:, None]
+            expected[np.arange(len(ids)), ids] = 1 - 2 * s
+            np.testing.assert_allclose(w, expected, rtol=0, atol=1e-15)
+            assert (w[np.arange(len(ids)), ids] < 1).all()
+
+
+def _edges_and_bisectors(count):
+    """``count`` interior edges (a, b) with the outward unit bisector of their two faces' normals."""
+    normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    owner = np.tile(np.arange(len(F)), 3)
+    order = np.lexsort((directed[:, 1], directed[:, 0]))
+    lookup = {tuple(e): o for e, o in zip(directed[order], owner[order])}
+    pick = np.linspace(0, len(directed) - 1, count).astype(int)
+    pairs = directed[pick]
+    bisector = normals[owner[pick]] + normals[[lookup[(b, a)] for a, b in pairs]]
+    return pairs, bisector / np.linalg.norm(bisector, axis=1, keepdims=True)
+
+
+def test_edge_band_off_the_faces():
+    """Off both faces of an edge along their normals' bisector (so in no face's plane band): at 0.95 × EDGE_EPS ×
+    scale from the edge the coordinates are exactly the linear interpolation along it (by distance to the ends,
+    others 0); at 1.05× the mean value formula, close to it but with every other weight not all zero."""
+    from deformers.cage.mean_value import EDGE_EPS
+
+    pairs, bisector = _edges_and_bisectors(24)
+    t = np.linspace(0.2, 0.8, len(pairs))[:, None]
+    on_edge = (1 - t) * V[pairs[:, 0]] + t * V[pairs[:, 1]]
+    rows = np.arange(len(pairs))
+    for factor in (0.95, 1.05):
+        points = on_edge + factor * EDGE_EPS * SCALE * bisector
+        w = mean_value_coordinates(points, V, F)
+        da, db = (np.linalg.norm(points - V[pairs[:, k]], axis=1) for k in (0, 1))
+        expected = np.zeros_like(w)
+        expected[rows, pairs[:, 0]], expected[rows, pairs[:, 1]] = db / (da + db), da / (da + db)
+        others = w.copy()
+        others[rows, pairs[:, 0]] = others[rows, pairs[:, 1]] = 0
+        if factor < 1:
+            np.testing.assert_allclose(w, expected, rtol=0, atol=1e-15)
+            np.testing.assert_array_equal(others, 0)
+        else:
+            np.testing.assert_allclose(w, expected, rtol=0, atol=1e-6)
+            assert (np.abs(others).max(1) > 0).all()
+
+
+def test_plane_band_off_a_face():
+    """Along a face's normal from an interior point (barycentrics ≥ 0.2): at 0.95 × PLANE_EPS × scale the
+    coordinates are exactly the face's barycentrics (others 0), at 1.05× the mean value formula (others not 0)."""
+    from deformers.cage.mean_value import PLANE_EPS
+
+    faces, bary, on_face = _on_faces(40)
+    bary = 0.2 + 0.4 * bary  # every barycentric in [0.2, 0.6]
+    on_face = np.einsum("pk,pki->pi", bary, V[F[faces]])
+    normals = np.cross(V[F[faces, 1]] - V[F[faces, 0]], V[F[faces, 2]] - V[F[faces, 0]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    rows = np.arange(len(faces))[:, None]
+    for factor in (0.95, 1.05):
+        w = mean_value_coordinates(on_face + factor * PLANE_EPS * SCALE * normals, V, F)
+        expected = np.zeros_like(w)
+        expected[rows, F[faces]] = bary
+        np.testing.assert_allclose(w, expected, rtol=0, atol=1e-10)
+        others = w.copy()
+        others[rows, F[faces]] = 0
+        if factor < 1:
+            np.testing.assert_array_equal(others, 0)
+        else:
+            assert (np.abs(others).max(1) > 0).all()
+
+
+def test_bary_band_beyond_a_corner():
+    """In a face's plane just beyond a corner c (away from the centroid: barycentrics (−s, −s, 1 + 2s) on the other
+    corners and c): with s = 0.5 × BARY_EPS the point is on the face, clipped to c's indicator exactly; with
+    s = 2 × BARY_EPS it is not (the mean value formula: close to the indicator, not equal)."""
+    from deformers.cage.mean_value import BARY_EPS
+
+    ids = np.arange(3, len(V), 11)
+    faces, _ = _lowest_faces(ids)
+    unit, length = _toward_centroid(V, faces, ids)
+    for factor in (0.5, 2.0):
+        points = V[ids] - 3 * factor * BARY_EPS * length * unit  # t = 3s along c − centroid
+        w = mean_value_coordinates(points, V, F)
+        indicator = np.eye(len(V))[ids]
+        if factor < 1:
+            np.testing.assert_array_equal(w, indicator)
+        else:
+            np.testing.assert_allclose(w, indicator, rtol=0, atol=1e-6)
+            assert (w != indicator).any(1).all()
+
+
+def test_in_the_plane_of_a_face_outside_it():
+    """A point in a face's plane outside the face: that face subtends no solid angle (it is skipped), the others
+    still reproduce the point."""
+    faces = np.arange(0, len(F), 23)
+    corners = V[F[faces]]
+    points = np.einsum("k,pki->pi", [-0.6, 0.8, 0.8], corners)  # barycentrics (−0.6, 0.8, 0.8): beyond an edge
+    w = mean_value_coordinates(points, V, F)
+    assert np.abs(w.sum(1) - 1).max() < 1e-12
+    assert np.abs(w @ V - points).max() < 1e-9 * SCALE
+
+
+def test_an_unreferenced_cage_vertex_gets_no_weight():
+    stray = np.concatenate([V, [[0.05, -0.1, 0.02]]])  # inside the cage and its bounding box
+    w = mean_value_coordinates(INSIDE[:30], stray, F)
+    assert w.shape == (30, len(V) + 1)
+    np.testing.assert_array_equal(w[:, -1], 0)
+    np.testing.assert_allclose(w[:, :-1], mean_value_coordinates(INSIDE[:30], V, F), rtol=0, atol=1e-12)
+
+
+def test_far_from_the_origin():
+    """A cage 1e8 away from the origin: coordinates are translation invariant (the computation is centred on the cage;
+    the translated coordinates are exact in float64 relative to each other, Sterbenz)."""
+    shift = np.array([1e8, -2e8, 3e8])
+    vertices, points = V + shift, INSIDE[:40] + shift
+    w = mean_value_coordinates(points, vertices, F)
+    reference = mean_value_coordinates(points - shift, vertices - shift, F)
+    np.testing.assert_allclose(w, reference, rtol=0, atol=1e-12)
+
+
+def test_degenerate_positions_raise_no_warnings():
+    """The 0/0 and x/0 at vertices, edges and faces are overwritten afterwards: no RuntimeWarning reaches the caller
+    (the workers run in threads: the warning filter is process-wide)."""
+    import warnings
+
+    faces, _, on_face = _on_faces(10)
+    on_edge = 0.3 * V[F[faces, 0]] + 0.7 * V[F[faces, 1]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for points in (V[:20], on_edge, on_face):
+            mean_value_coordinates(points, V, F)
+
+
+def test_float32_and_int32_inputs_are_read_as_float64_and_int64():
+    """A float32 cage (and points, int32 faces) gives bit for bit the coordinates of its float64 copy: the cage is
+    not processed in float32 (which would cost ~1e-7)."""
+    vertices, points = V.astype(np.float32), INSIDE[:30].astype(np.float32)
+    w = mean_value_coordinates(points, vertices, F.astype(np.int32))
+    np.testing.assert_array_equal(w, mean_value_coordinates(points.astype(float), vertices.astype(float), F))
