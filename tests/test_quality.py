@@ -38,8 +38,10 @@ def test_training_bound_is_the_last_held_out_psnr():
 
 
 def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch, capsys):
-    """The top half of the capsule mirrored through z = 0 (given as the deformed mesh): its faces fold, and the lift
-    inverts the tets between; the edit is written, with one warning line per bound and the same in report.json."""
+    """The top half of the capsule mirrored through z = 0 (given as the deformed mesh): its faces fold. The default
+    (inversion-free) lift keeps every tet positive, so the one warning is the folded surface; the soft-ARAP lift
+    alone (``--lift-options.no-injective``) also inverts tets: a second line. The edit is written either way, and
+    report.json holds the same messages."""
     monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "cache"))
     capsule.save(tmp_path / "rest.ply")
     mirrored = capsule.vertices.copy()
@@ -48,13 +50,16 @@ def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch
     capsule.with_vertices(mirrored).save(tmp_path / "folded.ply")
     (tmp_path / "edit.json").write_text(json.dumps({"deformed": "folded.ply"}))
     argv = ["edit", "--mesh", str(tmp_path / "rest.ply"), "--deformer", "mesh", "--edit", str(tmp_path / "edit.json")]
-    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
-    err = capsys.readouterr().err.splitlines()
-    written = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert written["warnings"] == edit_warnings(written) and len(written["warnings"]) == 2
-    assert err == [f"warning: {message}" for message in written["warnings"]]
-    frame = written["per_frame"][0]
-    assert frame["flipped_surface_faces"] >= np.count_nonzero(top) // 2 and frame["inverted_tets"] > 0
+    for name, options, count in (("default", [], 1), ("arap", ["--lift-options.no-injective"], 2)):
+        assert main([*argv, "--out", str(tmp_path / name), *options]) == 0
+        err = capsys.readouterr().err.splitlines()
+        written = json.loads((tmp_path / name / "report.json").read_text())
+        assert written["warnings"] == edit_warnings(written) and len(written["warnings"]) == count
+        assert err == [f"warning: {message}" for message in written["warnings"]]
+        assert "fold" in written["warnings"][0]
+        frame = written["per_frame"][0]
+        assert frame["flipped_surface_faces"] >= np.count_nonzero(top) // 2
+        assert (frame["inverted_tets"] > 0) == (name == "arap")
 
 
 def test_a_field_trained_for_a_few_steps_warns(tiny_scene, tmp_path, capsys):

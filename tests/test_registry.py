@@ -93,6 +93,7 @@ def test_plugins_command_lists_each_builtin_with_its_description(capsys, monkeyp
     from deformers.cage import CageConfig
     from deformers.mesh import MeshConfig
     from deformers.skeleton import SkeletonConfig
+    from deformers.transfer import TransferConfig
     from nerfedit_plugin.cli import common
     from nerfedit_plugin.cli.app import main
     from nerfedit_plugin.fields.mesh_field import MeshFieldConfig
@@ -112,6 +113,7 @@ def test_plugins_command_lists_each_builtin_with_its_description(capsys, monkeyp
         ("nerfedit.deformers", "cage", "deformers.cage:CageConfig", CageConfig),
         ("nerfedit.deformers", "mesh", "deformers.mesh:MeshConfig", MeshConfig),
         ("nerfedit.deformers", "skeleton", "deformers.skeleton:SkeletonConfig", SkeletonConfig),
+        ("nerfedit.deformers", "transfer", "deformers.transfer:TransferConfig", TransferConfig),
         ("nerfedit.fields", "mesh", "nerfedit_plugin.fields.mesh_field:MeshFieldConfig", MeshFieldConfig),
         ("nerfedit.fields", "nerf", "nerfedit_plugin.fields.nerf:NerfConfig", NerfConfig),
         ("nerfedit.fields", "neus", "nerfedit_plugin.fields.neus:NeusConfig", NeusConfig),
