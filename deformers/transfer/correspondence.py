@@ -34,7 +34,7 @@ from deformers.transfer.gradients import (
 )
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
-from nerfedit_plugin.geometry.arap import _Factor
+from nerfedit_plugin.geometry.cholesky import SparseCholesky
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_path
 
@@ -144,7 +144,7 @@ def fit_source(
             rhs = base_rhs.copy()
             rhs[:n] += pull[:n, None] * points
         rows = matrix[free]
-        x[free] = _Factor(rows[:, free]).solve(rhs[free] - rows[:, np.flatnonzero(fixed)] @ x[fixed])
+        x[free] = SparseCholesky(rows[:, free]).solve(rhs[free] - rows[:, np.flatnonzero(fixed)] @ x[fixed])
         distances.append(float(raycast.distance(scene, x[:n]).mean()))
     return x[:n], tuple(distances)
 

@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.arap import _Factor
+from nerfedit_plugin.geometry.cholesky import SparseCholesky
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 DEGENERATE = 1e-12
@@ -110,7 +110,7 @@ class TransferSystem:
         pinned[touched[np.unique(part[touched], return_index=True)[1]]] = True  # the gauge: one vertex per part
         self._free, self._pinned = np.flatnonzero(~pinned), np.flatnonzero(pinned)
         self._rest = tgt_rest
-        self._factor = _Factor(matrix[self._free][:, self._free])
+        self._factor = SparseCholesky(matrix[self._free][:, self._free])
         self._coupling = matrix[self._free][:, self._pinned].tocsr()
 
         # translation of part p: mean over its pairs of (target rest + source displacement − target) centroids

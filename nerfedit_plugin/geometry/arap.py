@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.cholesky import SparseCholesky
 
 ENERGIES = ("spokes_and_rims", "spokes", "elements")
 
@@ -188,40 +189,6 @@ def fit_rotations_numpy(stacked: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(rotations.transpose(2, 0, 1).reshape(3 * g, 3))
 
 
-class _Factor:
-    """Sparse SPD factorisation, solved for several right-hand sides: cholespy (CHOLMOD) when installed, else scipy's
-    SuperLU (2–3× slower)."""
-
-    def __init__(self, matrix: sp.csr_matrix) -> None:
-        matrix = matrix.tocsr()
-        matrix.sort_indices()
-        try:
-            from cholespy import CholeskySolverD, MatrixType
-        except ImportError:
-            from scipy.sparse.linalg import splu
-
-            self._cholesky, self._lu = None, splu(matrix.tocsc(), permc_spec="COLAMD")
-            return
-        try:
-            self._cholesky = CholeskySolverD(
-                matrix.shape[0],
-                matrix.indptr.astype(np.int32),
-                matrix.indices.astype(np.int32),
-                np.ascontiguousarray(matrix.data),
-                MatrixType.CSR,
-            )
-        except ValueError as exc:
-            raise NerfEditError(f"ARAP: the system matrix is not positive definite ({exc})") from exc
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        rhs = np.ascontiguousarray(rhs, dtype=np.float64)
-        if self._cholesky is None:
-            return self._lu.solve(rhs)
-        out = np.empty_like(rhs)
-        self._cholesky.solve(rhs, out)
-        return out
-
-
 class _Anderson:
     """Anderson acceleration (type II) of a fixed-point map x ↦ G(x) from its last ``depth`` evaluations.
 
@@ -344,7 +311,7 @@ class ArapSolver:
             )
         self._system_known = rows[:, self.known].tocsr()
         self._k_free = self._k[self.free].tocsr()
-        self._factor = _Factor(rows[:, self.free]) if len(self.free) else None
+        self._factor = SparseCholesky(rows[:, self.free]) if len(self.free) else None
 
     # ---- set-up helpers ------------------------------------------------------------------------
     def _check_components(self, elements, ei, ej, constraints) -> None:

@@ -28,7 +28,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.arap import _Factor, cotangent_weights
+from nerfedit_plugin.geometry.arap import cotangent_weights
+from nerfedit_plugin.geometry.cholesky import SparseCholesky
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 #: fraction of the maximal flip-free step a line search starts from (SLIM: 0.8)
@@ -152,7 +153,7 @@ class InjectiveSolver:
         laplacian = sp.diags(diagonal) - adjacency - adjacency.T
         stiffness = 2.0 * (laplacian + self.constraint_weight * (self.constraints.T @ self.constraints)).tocsr()
         stiffness += sp.diags(np.full(n, RIDGE * stiffness.diagonal().mean() + 1e-300))
-        self._preconditioner = _Factor(sp.csr_matrix(stiffness))
+        self._preconditioner = SparseCholesky(sp.csr_matrix(stiffness))
 
     def edge_matrices(self, positions: np.ndarray) -> np.ndarray:
         """positions (N,3) float64 → (K,3,3) float64 ``D_t`` (column k = ``x_{k+1} − x_0``)."""
@@ -200,7 +201,7 @@ class InjectiveSolver:
         preconditioned with the rest stiffness, to a relative residual of :data:`CG_TOLERANCE` (an inexact Newton
         step; any CG iterate is a descent direction)."""
         if exact:
-            return _Factor(matrix).solve(gradient)
+            return SparseCholesky(matrix).solve(gradient)
         precondition = lambda r: self._preconditioner.solve(r.reshape(-1, 3)).ravel()  # noqa: E731
         out, residual = np.zeros_like(gradient), gradient.copy()
         z = precondition(residual)
