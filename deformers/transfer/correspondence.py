@@ -1,7 +1,7 @@
 """Triangle correspondence between a source and a target mesh (Sumner & Popović 2004, §5).
 
 Same connectivity: triangle f ↔ triangle f. Otherwise the source is deformed onto the target, in unit coordinates
-(:func:`deformers.transfer.gradients.unit_frame` of each mesh), minimising over its vertices and fourth vertices
+(``nerfedit_plugin.geometry.mesh.unit_frame`` of each mesh), minimising over its vertices and fourth vertices
 
     w_S Σ_{adjacent i,j} ‖T_i − T_j‖²_F + w_I Σ_i ‖T_i − I‖²_F + w_C Σ_v ‖x_v − c_v‖²
 
@@ -116,7 +116,10 @@ def fit_source(
 ) -> tuple[np.ndarray, tuple[float, ...]]:
     """Deform ``source`` onto ``target`` (module docstring) with ``markers (M, 2)`` (source vertex, target vertex)
     → ``(fitted (V_s,3) in target unit coordinates, mean distance to the target after each phase)``."""
-    src, tgt = to_unit(source.vertices, unit_frame(source)), to_unit(target.vertices, unit_frame(target))
+    src, tgt = (
+        to_unit(source.vertices, unit_frame(source.vertices)),
+        to_unit(target.vertices, unit_frame(target.vertices)),
+    )
     n, faces = len(src), source.faces
     op, ok = gradient_operator(src, faces)
     _require_markers(source, ok, markers, label)
@@ -204,9 +207,9 @@ def correspondence(
     key = digest.hexdigest()
     if key not in _cache:
         fitted, distances = fit_source(source, target, markers, smoothness, identity, closest, label)
-        tgt = to_unit(target.vertices, unit_frame(target))
+        tgt = to_unit(target.vertices, unit_frame(target.vertices))
         pairs = match_triangles(fitted, source.faces, tgt, target.faces, max_distance)
-        centre, size = unit_frame(target)
+        centre, size = unit_frame(target.vertices)
         while len(_cache) >= CACHE_SIZE:
             _cache.pop(next(iter(_cache)))
         _cache[key] = Correspondence(pairs, centre + size * fitted, distances)

@@ -11,7 +11,8 @@ mesh and the pairs only: the fourth vertices are eliminated exactly (each appear
 only, so its block is diagonal), one vertex per connected part is pinned (the energy ignores translations), the
 reduced matrix is factored once, and each pose is one sparse product plus one back-substitution. The free
 translation of each part is then set so that its paired triangle centroids move, on average, as the source's do.
-All of it runs in unit coordinates (:func:`unit_frame`): scale and position of the meshes do not matter.
+All of it runs in unit coordinates (``nerfedit_plugin.geometry.mesh.unit_frame``): scale and position of the meshes
+do not matter.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from scipy.sparse.csgraph import connected_components
 
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, unit_frame
 
 DEGENERATE = 1e-12
 """A triangle whose doubled area is at most this (in unit coordinates, bbox diagonal 1) has no gradient."""
@@ -31,14 +32,8 @@ DEGENERATE = 1e-12
 CORNERS = np.array([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
 
-def unit_frame(mesh: SurfaceMesh) -> tuple[np.ndarray, float]:
-    """``(centre, size)``: the bounding-box centre and diagonal, so that ``(x − centre) / size`` has diagonal 1."""
-    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
-    return (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
-
-
 def to_unit(vertices: np.ndarray, frame: tuple[np.ndarray, float]) -> np.ndarray:
-    """``vertices (..., 3)`` in the unit coordinates of ``frame`` (:func:`unit_frame`)."""
+    """``vertices (..., 3)`` in the unit coordinates of ``frame`` (``nerfedit_plugin.geometry.mesh.unit_frame``)."""
     return (vertices - frame[0]) / frame[1]
 
 
@@ -84,7 +79,7 @@ class TransferSystem:
     (source triangle, target triangle); :meth:`transfer` maps one source pose ``(V_s, 3)`` to target vertices."""
 
     def __init__(self, source: SurfaceMesh, target: SurfaceMesh, pairs: np.ndarray) -> None:
-        self.source_frame, self.target_frame = unit_frame(source), unit_frame(target)
+        self.source_frame, self.target_frame = unit_frame(source.vertices), unit_frame(target.vertices)
         self.source_faces = source.faces
         src_op, src_ok = gradient_operator(to_unit(source.vertices, self.source_frame), source.faces)
         tgt_rest = to_unit(target.vertices, self.target_frame)
@@ -147,8 +142,8 @@ def _centroids(faces: np.ndarray, n: int) -> sp.csr_matrix:
 def check_determined(source: SurfaceMesh, target: SurfaceMesh, pairs: np.ndarray, label: str) -> None:
     """Every target triangle with a gradient must be paired with a source triangle with one; else a NerfEditError
     (``label`` first) saying how many are not and where (the bounding box of their centroids)."""
-    _, ok = gradient_operator(to_unit(target.vertices, unit_frame(target)), target.faces)
-    _, source_ok = gradient_operator(to_unit(source.vertices, unit_frame(source)), source.faces)
+    _, ok = gradient_operator(to_unit(target.vertices, unit_frame(target.vertices)), target.faces)
+    _, source_ok = gradient_operator(to_unit(source.vertices, unit_frame(source.vertices)), source.faces)
     matched = np.zeros(len(target.faces), dtype=bool)
     matched[pairs[source_ok[pairs[:, 0]], 1]] = True
     missing = np.flatnonzero(ok & ~matched)

@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse
 
 from nerfedit_plugin.errors import NerfEditError, check_option
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, unit_frame
 from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these lived here before geometry.tets)
     DEGENERATE_VOLUME_RATIO,
     boundary_faces,
@@ -270,17 +270,8 @@ def embed_surface(vertices: np.ndarray, tets: np.ndarray, mesh: SurfaceMesh) -> 
     """:func:`embed_points` of the vertices of ``mesh`` in the tets, both mapped into the :func:`unit_frame` of
     ``mesh`` (barycentrics do not change under the similarity; the location does not depend on scale or position).
     A function of its arguments only: a proxy re-used from an edit folder gets the embedding it was built with."""
-    centre, scale = unit_frame(mesh)
+    centre, scale = unit_frame(mesh.vertices)
     return embed_points((vertices - centre) / scale, tets, (mesh.vertices - centre) / scale)
-
-
-def unit_frame(mesh: SurfaceMesh) -> tuple[np.ndarray, float]:
-    """→ ``(centre (3,) float64, scale float)``: the bounding-box centre and diagonal of ``mesh``. The build works on
-    ``(vertices - centre) / scale`` (unit diagonal, centred), so nothing in it depends on the mesh's absolute size or
-    position: fTetWild's absolute tolerances crash it (segfault) on a cow 1e-6 across, Open3D's float32 distances
-    lose the margin far from the origin."""
-    low, high = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    return (low + high) / 2, float(mesh.bbox_diagonal)
 
 
 def proxy_from_tets(vertices: np.ndarray, tets: np.ndarray, mesh: SurfaceMesh, where: str) -> TetProxy:
@@ -311,7 +302,7 @@ def build_proxy(mesh: SurfaceMesh, config: ProxyConfig | None = None, camera_dis
     config.validate()
     _check_mesh(mesh)
     offset = resolve_offset(mesh, config, camera_distance)
-    centre, scale = unit_frame(mesh)
+    centre, scale = unit_frame(mesh.vertices)
     unit = mesh.with_vertices((mesh.vertices - centre) / scale)
     times: dict[str, float] = {}
     clock = Stopwatch(seconds=times, digits=None)  # stages repeat across attempts: their times add up

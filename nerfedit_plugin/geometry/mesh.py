@@ -13,6 +13,15 @@ from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.io.samples import resolve_mesh_path
 
 
+def unit_frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """vertices (N,3) → ``(centre (3,) float64, size float)``: the bounding-box centre and diagonal (1 for a single
+    point), so ``(x − centre) / size`` is centred with a unit diagonal. Steps whose tolerances are absolute (fTetWild
+    segfaults on a cow 1e-6 across; MeshLab's float32 meshes; Open3D's float32 distances far from the origin) run in
+    this frame, so their results do not depend on the input's size or position."""
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    return (low + high) / 2, float(np.linalg.norm(high - low)) or 1.0
+
+
 @dataclass
 class SurfaceMesh:
     """A triangle mesh: ``vertices (V,3) float64``, ``faces (F,3) int64``, optional ``vertex_colors (V,3)`` float64

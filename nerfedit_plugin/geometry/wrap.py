@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, unit_frame
 from nerfedit_plugin.timing import Stopwatch
 
 
@@ -34,8 +34,7 @@ def wrap_and_decimate(
 
     clock = clock or Stopwatch()
     vertices = np.asarray(vertices, dtype=np.float64)
-    low, high = vertices.min(axis=0), vertices.max(axis=0)
-    centre, size = (low + high) / 2, float(np.linalg.norm(high - low)) or 1.0
+    centre, size = unit_frame(vertices)
     if not percent:
         alpha, offset = alpha / size, offset / size
     meshset = pymeshlab.MeshSet()

@@ -12,12 +12,12 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
 from deformers.transfer import TransferConfig, TransferDeformer, TransferSystem, correspondence, gradient_operator
-from deformers.transfer.gradients import gradient_rows, to_unit, unit_frame, with_fourth_vertices
+from deformers.transfer.gradients import gradient_rows, to_unit, with_fourth_vertices
 from nerfedit_plugin.data.sequences import bending_capsule, capsule, twisting_bar
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, unit_frame
 from nerfedit_plugin.testing import default_mesh, parametrize_with_checks
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -121,14 +121,14 @@ def test_prefactored_solve_equals_a_fresh_solve_of_the_full_system():
     """Factor once, solve per pose = solving the normal equations with every fourth vertex kept (scipy, afresh)."""
     pairs = correspondence(SOURCE, TARGET, markers()).pairs
     system = TransferSystem(SOURCE, TARGET, pairs)
-    src = to_unit(SOURCE.vertices, unit_frame(SOURCE))
-    tgt_frame = unit_frame(TARGET)
+    src = to_unit(SOURCE.vertices, unit_frame(SOURCE.vertices))
+    tgt_frame = unit_frame(TARGET.vertices)
     op_s, _ = gradient_operator(src, SOURCE.faces)
     op_t, _ = gradient_operator(to_unit(TARGET.vertices, tgt_frame), TARGET.faces)
     a = op_t[gradient_rows(pairs[:, 1])]
     used = np.concatenate([np.arange(TARGET.n_vertices), TARGET.n_vertices + np.unique(pairs[:, 1])])[1:]  # pin 0
     for pose in POSES[1:]:
-        unit_pose = to_unit(pose, unit_frame(SOURCE))
+        unit_pose = to_unit(pose, unit_frame(SOURCE.vertices))
         c = (op_s @ with_fourth_vertices(unit_pose, SOURCE.faces))[gradient_rows(pairs[:, 0])]
         a_used = sp.csc_matrix(a[:, used])
         fresh = np.column_stack([spsolve((a_used.T @ a_used).tocsc(), a_used.T @ c[:, d]) for d in range(3)])

@@ -330,10 +330,10 @@ def test_proxy_valid_when_large_or_far_from_origin(capsule, scale, shift):
     mesh = capsule.with_vertices(capsule.vertices * scale + shift)
     proxy = build_proxy(mesh, COARSE)
     assert_valid_proxy(proxy, mesh, COARSE)
-    centre, size = unit_frame(mesh)
+    centre, size = unit_frame(mesh.vertices)
     assert proxy.info["unit_frame"] == {"centre": centre.tolist(), "scale": size}
     unit = (proxy.vertices - centre) / size
-    reference = (capsule.vertices - unit_frame(capsule)[0]) / capsule.bbox_diagonal
+    reference = (capsule.vertices - unit_frame(capsule.vertices)[0]) / capsule.bbox_diagonal
     offset = proxy.info["offset"] / size
     assert np.all(unit.min(0) <= reference.min(0) - COARSE.min_margin * offset)
     assert np.all(unit.max(0) >= reference.max(0) + COARSE.min_margin * offset)
