@@ -2,7 +2,8 @@
 
 Output folder (written atomically: staged beside the target, renamed on success):
 ``config.yml``, a copy of the spec, ``deformed_mesh.ply`` (or ``deformed_mesh_0000.ply`` … for sequences),
-``deformation.npz``, ``report.json`` and whatever the deformer's optional ``write_artifacts(out_dir)`` writes.
+``deformation.npz`` (the lifted proxy: refined where the lift needed it), ``proxy.npz`` (the proxy as built, for
+``--proxy-from``), ``report.json`` and whatever the deformer's optional ``write_artifacts(out_dir)`` writes.
 """
 
 from __future__ import annotations
@@ -39,8 +40,9 @@ def reuse_proxy(
     source: str | os.PathLike, mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None
 ) -> TetProxy:
     """The tet proxy of an earlier edit (its folder or its ``deformation.npz``), for the same rest mesh and proxy
-    settings: the rest tets of ``deformation.npz`` with ``mesh`` embedded again. pytetwild is not deterministic, so
-    this (or a warm cache) is how a re-run gives the same ``deformation.npz`` bit for bit. The folder's
+    settings: the proxy as built (the folder's ``proxy.npz``: the lift may have refined it since; folders without
+    one, the rest tets of ``deformation.npz``) with ``mesh`` embedded again. pytetwild is not deterministic, so this
+    (or a warm cache) is how a re-run gives the same ``deformation.npz`` bit for bit. The folder's
     ``report.json`` must record the proxy key (:func:`proxy_cache_key`) of ``mesh``, ``config`` and
     ``camera_distance``; otherwise :class:`NerfEditError`."""
     source = Path(source)
@@ -57,6 +59,9 @@ def reuse_proxy(
             f"--proxy-from {source}: its proxy was built from another mesh or other proxy settings "
             "(mesh, --proxy.*, camera distance must be those of that edit)"
         )
+    if (path.parent / "proxy.npz").is_file():
+        built = TetProxy.load(path.parent / "proxy.npz")
+        return proxy_from_tets(built.vertices, built.tets, mesh, f"--proxy-from {path.parent / 'proxy.npz'}")
     field = DeformationField.load(path)
     return proxy_from_tets(field.rest_vertices, field.tets, mesh, f"--proxy-from {path}")
 
@@ -106,7 +111,8 @@ def run_edit(
             else:
                 proxy, cached = cached_proxy(rest, proxy_config, cache_dir or default_cache_dir(), camera_distance)
         with clock.stage("lift"):
-            lifted, reports = Lift(proxy, rest, lift, lift_config, deformer=model, edit=spec)(frames)
+            lifter = Lift(proxy, rest, lift, lift_config, deformer=model, edit=spec)
+            lifted, reports = lifter(frames)
         with clock.stage("write"):
             names = (
                 ["deformed_mesh.ply"]
@@ -115,7 +121,8 @@ def run_edit(
             )
             for name, positions in zip(names, frames):
                 rest.with_vertices(positions).save(stage / name)
-            DeformationField(proxy.vertices, proxy.tets, lifted).save(stage / "deformation.npz")
+            DeformationField(lifter.proxy.vertices, lifter.proxy.tets, lifted).save(stage / "deformation.npz")
+            proxy.save(stage / "proxy.npz")
             shutil.copyfile(edit, stage / Path(edit).name)
             model.write_artifacts(stage)
             write_config(stage / "config.yml", record if record is not None else {"deformer": deformer, "lift": lift})
@@ -125,8 +132,10 @@ def run_edit(
             "frames": len(frames),
             "surface": {"vertices": rest.n_vertices, "faces": len(rest.faces)},
             "proxy": {
-                "vertices": len(proxy.vertices),
-                "tets": len(proxy.tets),
+                "vertices": len(lifter.proxy.vertices),
+                "tets": len(lifter.proxy.tets),
+                "built_tets": len(proxy.tets),
+                "refinements": lifter.refinements,
                 "cached": cached,
                 "key": key,
                 "reused_from": None if proxy_from is None else str(Path(proxy_from).resolve()),

@@ -29,6 +29,7 @@ from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.injective import InjectiveSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.refine import bisect
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
@@ -52,6 +53,13 @@ class LiftConfig:
     """Upper bound on the Newton iterations of an inversion-free re-lift."""
     injective_tolerance: float = 1e-2
     """Stop an inversion-free re-lift when an iteration lowers its energy by less than this fraction."""
+    residual_target: float = 2e-3
+    """tet-arap: where the lifted proxy misses a surface vertex by more than this × the rest bbox diagonal (the
+    piecewise-affine fit is too coarse there), the tets holding such vertices are bisected and every frame is
+    lifted again, warm-started from the previous lift."""
+    refine_rounds: int = 3
+    """tet-arap: refinements of the proxy at most (each halves the edges of the tets it marks); 0 keeps the proxy
+    as built."""
 
     def __post_init__(self) -> None:
         weight, iterations, tolerance = self.constraint_weight, self.max_iterations, self.tolerance
@@ -62,6 +70,9 @@ class LiftConfig:
         newton, stop = self.injective_max_iterations, self.injective_tolerance
         check_option(self, "injective_max_iterations", newton, newton >= 1, "a positive integer")
         check_option(self, "injective_tolerance", stop, 0 <= stop < np.inf, "a number >= 0")
+        target, rounds = self.residual_target, self.refine_rounds
+        check_option(self, "residual_target", target, 0 < target < np.inf, "a positive number")
+        check_option(self, "refine_rounds", rounds, rounds >= 0, "an integer >= 0")
 
 
 @dataclasses.dataclass
@@ -116,33 +127,34 @@ class Lift:
         edit: EditSpec | None = None,
     ) -> None:
         config = LiftConfig() if config is None else config
-        self.proxy, self.rest, self.method, self.config = proxy, rest, method, config
-        self.deformer = deformer
-        self.embedding = proxy.embedding_matrix()
-        self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
+        self.rest, self.method, self.config = rest, method, config
+        self.deformer, self.edit = deformer, edit
         self.rest_normals = face_normals(rest.vertices, rest.faces)
         if method == "direct" and (deformer is None or not deformer.supports_points()):
             name = type(deformer).__name__ if deformer is not None else "no deformer"
             raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
-        if method == "tet-arap":
-            self.solver = ArapSolver(
-                proxy.vertices,
-                proxy.tets,
-                energy="elements",
-                constraints=self.embedding,
-                constraint_weight=config.constraint_weight,
-            )
-        elif method == "tet-edit":
-            if edit is None or not edit.handles:
-                raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
-            fixed, self.handle_targets = edit.handle_targets(proxy.vertices)
-            self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)
+        if method == "tet-edit" and (edit is None or not edit.handles):
+            raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
+        self.refinements = 0
+        self._bind(proxy)
+
+    def _bind(self, proxy: TetProxy) -> None:
+        """Set up the lift on ``proxy``: the embedding, and for the ARAP lifts the factored solver."""
+        self.proxy = proxy
+        self.embedding = proxy.embedding_matrix()
+        self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
         self.injective: InjectiveSolver | None = None  # built on the first fold
-        if method == "tet-edit":
+        if self.method == "tet-arap":
+            weight = self.config.constraint_weight
+            self.solver = ArapSolver(
+                proxy.vertices, proxy.tets, energy="elements", constraints=self.embedding, constraint_weight=weight
+            )
+            self._soft = self.embedding
+        elif self.method == "tet-edit":
+            fixed, self.handle_targets = self.edit.handle_targets(proxy.vertices)
+            self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)
             rows = np.arange(len(fixed))
             self._soft = sp.csr_matrix((np.ones(len(fixed)), (rows, fixed)), shape=(len(fixed), len(proxy.vertices)))
-        elif method == "tet-arap":
-            self._soft = self.embedding
 
     def frame(self, index: int, surface: np.ndarray, previous: np.ndarray | None) -> tuple[np.ndarray, int]:
         """Frame ``index``: surface (V,3) float64, previous proxy frame (N,3) float64 or None (warm start) →
@@ -209,13 +221,41 @@ class Lift:
             seconds=seconds,
         )
 
-    def __call__(self, frames: np.ndarray) -> tuple[np.ndarray, list[FrameReport]]:
-        """Lift surface frames ``(F,V,3)`` float → proxy frames ``(F,N,3)`` float64 and one report per frame."""
+    def misfit_tets(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (K,) bool: the tets holding a surface vertex
+        whose residual exceeds ``residual_target`` in some frame."""
+        target = self.config.residual_target * self.rest.bbox_diagonal
+        residual = np.stack([np.linalg.norm(self.embedding @ x - v, axis=1) for x, v in zip(lifted, frames)])
+        marked = np.zeros(len(self.proxy.tets), dtype=bool)
+        marked[self.proxy.embed_tets[(residual > target).any(axis=0)]] = True
+        return marked
+
+    def _lift(self, frames: np.ndarray, starts: np.ndarray | None) -> tuple[np.ndarray, list[FrameReport]]:
         out, reports, previous = [], [], None
-        for index, surface in enumerate(np.asarray(frames, dtype=np.float64)):
+        for index, surface in enumerate(frames):
             start = time.perf_counter()
-            deformed, iterations = self.frame(index, surface, previous)
+            deformed, iterations = self.frame(index, surface, previous if starts is None else starts[index])
             reports.append(self.report(deformed, surface, iterations, time.perf_counter() - start))
             out.append(deformed)
             previous = deformed
         return np.stack(out), reports
+
+    def __call__(self, frames: np.ndarray) -> tuple[np.ndarray, list[FrameReport]]:
+        """Lift surface frames ``(F,V,3)`` float → proxy frames ``(F,N,3)`` float64 and one report per frame (its
+        iterations and seconds summed over the refinement rounds). Frames are warm-started from the previous frame;
+        after a refinement (tet-arap), from their own lift prolonged onto the refined proxy, now ``self.proxy``."""
+        frames = np.asarray(frames, dtype=np.float64)
+        lifted, reports = self._lift(frames, None)
+        while self.method == "tet-arap" and self.refinements < self.config.refine_rounds:
+            marked = self.misfit_tets(lifted, frames)
+            if not marked.any():
+                break
+            refinement = bisect(self.proxy.vertices, self.proxy.tets, marked)
+            self._bind(self.proxy.refined(refinement, self.rest))
+            self.refinements += 1
+            lifted, again = self._lift(frames, np.stack([refinement.prolong(x) for x in lifted]))
+            reports = [
+                dataclasses.replace(new, iterations=old.iterations + new.iterations, seconds=old.seconds + new.seconds)
+                for old, new in zip(reports, again)
+            ]
+        return lifted, reports

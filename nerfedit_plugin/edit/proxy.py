@@ -35,6 +35,7 @@ import scipy.sparse
 
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.mesh import SurfaceMesh, unit_frame
+from nerfedit_plugin.geometry.refine import Refinement
 from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these lived here before geometry.tets)
     DEGENERATE_VOLUME_RATIO,
     boundary_faces,
@@ -117,6 +118,14 @@ class TetProxy:
             (self.embed_bary.ravel(), self.tets[self.embed_tets].ravel(), np.arange(0, 4 * n_surface + 1, 4)),
             shape=(n_surface, len(self.vertices)),
         )
+
+    def refined(self, refinement: Refinement, mesh: SurfaceMesh) -> TetProxy:
+        """This proxy bisected by ``refinement`` (:func:`~nerfedit_plugin.geometry.refine.bisect` of its tets), with
+        ``mesh`` (the surface it embeds) located in the children of its tets; same cage, ``info["refinements"]``
+        counts the refinements."""
+        embed_tets, embed_bary = refinement.locate(mesh.vertices, self.embed_tets, self.embed_bary)
+        info = {**self.info, "refinements": int(self.info.get("refinements", 0)) + 1}
+        return TetProxy(refinement.vertices, refinement.tets, self.cage, embed_tets, embed_bary, info)
 
     _ARRAYS = ("vertices", "tets", "embed_tets", "embed_bary")
 

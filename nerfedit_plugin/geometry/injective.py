@@ -127,28 +127,30 @@ class InjectiveSolver:
             np.add.at(diagonal, tets[:, j], weights[:, column])
         self.constraints = sp.csr_matrix(constraints, dtype=np.float64)
         self.constraint_weight = float(constraint_weight) * float(diagonal[np.unique(tets)].mean())
-        # Newton matrix pattern over DOFs 3·vertex + axis: every tet's 12×12 block plus 2 w_c CᵀC ⊗ I₃
-        dofs = (3 * tets[:, :, None] + np.arange(3)).reshape(-1, 12)
-        rows = np.repeat(dofs, 12, axis=1).ravel()
-        cols = np.tile(dofs, (1, 12)).ravel()
+        # Newton matrix as 3×3 blocks per vertex pair (BSR): every tet's 16 corner pairs, the pairs of CᵀC and the
+        # diagonal; each iteration sums the tets' blocks into their slots by one sparse product
+        n = len(rest)
         gram = (self.constraints.T @ self.constraints).tocoo()
-        c_rows = (3 * gram.row[:, None] + np.arange(3)).ravel()
-        c_cols = (3 * gram.col[:, None] + np.arange(3)).ravel()
-        size = 3 * len(rest)
-        keys = np.concatenate([rows * size + cols, c_rows * size + c_cols, np.arange(size) * (size + 1)])
-        unique, inverse = np.unique(keys, return_inverse=True)
-        self._slots = inverse.ravel()
-        self._constant = np.concatenate(
-            [np.zeros(len(rows)), 2.0 * self.constraint_weight * np.repeat(gram.data, 3), np.zeros(size)]
+        pairs_i = np.concatenate([np.repeat(tets, 4, axis=1).ravel(), gram.row, np.arange(n)])
+        pairs_j = np.concatenate([np.tile(tets, (1, 4)).ravel(), gram.col, np.arange(n)])
+        unique, inverse = np.unique(pairs_i * n + pairs_j, return_inverse=True)
+        inverse = inverse.ravel()
+        n_blocks, n_element = len(unique), 16 * len(tets)
+        self._gather = sp.csr_matrix(
+            (np.ones(n_element), (inverse[:n_element], np.arange(n_element))), shape=(n_blocks, n_element)
         )
-        rows = unique // size  # sorted keys: row-major, so the pattern is CSR as it stands
-        self._indptr = np.searchsorted(rows, np.arange(size + 1)).astype(np.int32)
-        self._indices = (unique % size).astype(np.int32)
-        self._diagonal_slots = self._slots[-size:]
+        self._constant = np.zeros((n_blocks, 3, 3))
+        np.add.at(
+            self._constant,
+            inverse[n_element : n_element + gram.nnz],
+            2.0 * self.constraint_weight * gram.data[:, None, None] * np.eye(3),
+        )
+        self._indptr = np.searchsorted(unique // n, np.arange(n + 1)).astype(np.int32)  # sorted: block CSR
+        self._indices = (unique % n).astype(np.int32)
+        self._diagonal_blocks = inverse[-n:]
         # preconditioner of the Newton systems: the Hessian at rest without its zero rotation modes, per axis,
         # 2 L + 2 w_c CᵀC (L the cotangent Laplacian: xᵀLx = Σ|t| ‖J‖²), factored once
         i, j = tets[:, [0, 0, 0, 1, 1, 2]].ravel(), tets[:, [1, 2, 3, 2, 3, 3]].ravel()
-        n = len(rest)
         adjacency = sp.coo_matrix((weights.ravel(), (i, j)), shape=(n, n)).tocsr()
         laplacian = sp.diags(diagonal) - adjacency - adjacency.T
         stiffness = 2.0 * (laplacian + self.constraint_weight * (self.constraints.T @ self.constraints)).tocsr()
@@ -175,7 +177,7 @@ class InjectiveSolver:
         penalty = self.constraints @ positions - targets
         return 0.25 * float(self.volumes @ distortion) + self.constraint_weight * float(np.sum(penalty * penalty))
 
-    def _newton_system(self, positions: np.ndarray, targets: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    def _newton_system(self, positions: np.ndarray, targets: np.ndarray) -> tuple[sp.bsr_matrix, np.ndarray]:
         """The projected Newton matrix (3N,3N) and the gradient (3N,) at ``positions``."""
         jac = self.jacobians(positions)
         u, sigma, vt = np.linalg.svd(jac)  # J = U diag(σ) Vᵀ, σ > 0 on positively oriented tets
@@ -187,21 +189,22 @@ class InjectiveSolver:
         gradient = np.zeros((self.n_vertices, 3))
         np.add.at(gradient, self.tets, b @ stress.transpose(0, 2, 1))
         gradient += 2.0 * self.constraint_weight * (self.constraints.T @ (self.constraints @ positions - targets))
-        data = self._constant.copy()
-        data[: element.size] = element.ravel()
-        summed = np.bincount(self._slots, weights=data, minlength=len(self._indices))
-        summed[self._diagonal_slots] += RIDGE * summed[self._diagonal_slots].mean()
-        size = len(self._indptr) - 1
-        matrix = sp.csr_matrix((summed, self._indices, self._indptr), shape=(size, size))
-        matrix.has_sorted_indices = True
+        k = len(self.tets)  # element rows/columns are (corner, axis): regroup as 16 corner-pair blocks of 3×3
+        blocks = element.reshape(k, 4, 3, 4, 3).transpose(0, 1, 3, 2, 4).reshape(16 * k, 9)
+        summed = (self._gather @ blocks).reshape(-1, 3, 3) + self._constant
+        diagonal = summed[self._diagonal_blocks]
+        ridge = RIDGE * np.einsum("kii->", diagonal) / (3 * len(diagonal))
+        summed[self._diagonal_blocks] += ridge * np.eye(3)
+        size = 3 * self.n_vertices
+        matrix = sp.bsr_matrix((summed, self._indices, self._indptr), shape=(size, size))
         return matrix, gradient.ravel()
 
-    def _direction(self, matrix: sp.csr_matrix, gradient: np.ndarray, exact: bool = False) -> np.ndarray:
+    def _direction(self, matrix: sp.bsr_matrix, gradient: np.ndarray, exact: bool = False) -> np.ndarray:
         """``matrix⁻¹ gradient`` (3N,): by a sparse Cholesky factorisation if ``exact``, else by conjugate gradients
         preconditioned with the rest stiffness, to a relative residual of :data:`CG_TOLERANCE` (an inexact Newton
         step; any CG iterate is a descent direction)."""
         if exact:
-            return SparseCholesky(matrix).solve(gradient)
+            return SparseCholesky(matrix.tocsr()).solve(gradient)
         precondition = lambda r: self._preconditioner.solve(r.reshape(-1, 3)).ravel()  # noqa: E731
         out, residual = np.zeros_like(gradient), gradient.copy()
         z = precondition(residual)

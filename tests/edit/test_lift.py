@@ -214,8 +214,8 @@ def test_tet_arap_lifts_the_folding_tube_edit_without_inverted_tets(tube):
     from nerfedit_plugin.edit.lift import LiftConfig
 
     rest, proxy, frames = tube
-    _, (old,) = Lift(proxy, rest, config=LiftConfig(injective=False))(frames)
-    lifted, (new,) = Lift(proxy, rest)(frames)
+    _, (old,) = Lift(proxy, rest, config=LiftConfig(injective=False, refine_rounds=0))(frames)
+    lifted, (new,) = Lift(proxy, rest, config=LiftConfig(refine_rounds=0))(frames)
     assert old.inverted_tets > 0
     assert new.inverted_tets == 0 and new.degenerate_tets == 0
     assert (tet_signed_volumes(lifted[0], proxy.tets) > 0).all()
@@ -254,12 +254,12 @@ def test_lift_keeps_the_arap_map_where_it_does_not_fold(capsule, capsule_proxy):
     from nerfedit_plugin.geometry.injective import InjectiveSolver
 
     frames = np.stack([bend(capsule.vertices, a) for a in (0.3, 0.6)])
-    old, old_reports = Lift(capsule_proxy, capsule, config=LiftConfig(injective=False))(frames)
-    new, new_reports = Lift(capsule_proxy, capsule)(frames)
+    old, old_reports = Lift(capsule_proxy, capsule, config=LiftConfig(injective=False, refine_rounds=0))(frames)
+    new, new_reports = Lift(capsule_proxy, capsule, config=LiftConfig(refine_rounds=0))(frames)
     assert all(r.inverted_tets == 0 for r in old_reports)
     np.testing.assert_array_equal(new, old)
     assert [r.residual_max for r in new_reports] == [r.residual_max for r in old_reports]
-    lift = Lift(capsule_proxy, capsule)
+    lift = Lift(capsule_proxy, capsule, config=LiftConfig(refine_rounds=0))
     solver = InjectiveSolver(capsule_proxy.vertices, capsule_proxy.tets, lift.embedding, 1000.0)
     fresh = solver.solve(capsule_proxy.vertices, frames[1], tolerance=1e-4).vertices
     report = lift.report(fresh, frames[1], 0, 0.0)
@@ -289,3 +289,50 @@ def test_lift_config_checks_the_injective_options():
     for bad in ({"injective_max_iterations": 0}, {"injective_tolerance": -1.0}, {"injective": "yes"}):
         with pytest.raises(NerfEditError, match=next(iter(bad))):
             LiftConfig(**bad)
+
+
+# ---- refinement where the fit misses the surface -----------------------------------------------------------------
+def test_refinement_brings_the_tube_edit_within_the_residual_target(tube):
+    """The tube's cage edit misses the surface by ~1.7e-2 × bbox on the proxy as built; the default lift refines the
+    proxy where it misses (bisection) until every surface vertex is within ``residual_target`` (2e-3), folding no tet.
+    The refined proxy still embeds the rest surface exactly, and its lift is a frame of the refined proxy."""
+    from nerfedit_plugin.edit.lift import LiftConfig
+
+    rest, proxy, frames = tube
+    _, (coarse,) = Lift(proxy, rest, config=LiftConfig(refine_rounds=0))(frames)
+    lift = Lift(proxy, rest)
+    lifted, (report,) = lift(frames)
+    assert coarse.residual_max > 2e-3  # the case needs the refinement
+    assert lift.refinements >= 1 and len(lift.proxy.tets) > len(proxy.tets)
+    assert report.residual_max <= 2e-3 and report.inverted_tets == report.degenerate_tets == 0
+    assert lifted.shape == (1, len(lift.proxy.vertices), 3)
+    assert (tet_signed_volumes(lifted[0], lift.proxy.tets) > 0).all()
+    np.testing.assert_allclose(lift.embedding @ lift.proxy.vertices, rest.vertices, atol=1e-12)
+    np.testing.assert_array_equal(lift.proxy.vertices[: len(proxy.vertices)], proxy.vertices)  # coarse ones kept
+
+
+def test_no_refinement_where_the_built_proxy_fits(capsule, capsule_proxy):
+    """A rigid motion is fitted exactly by any proxy: the default lift refines nothing and equals the lift with
+    refinement switched off, bit for bit."""
+    from nerfedit_plugin.edit.lift import LiftConfig
+
+    rotation = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    rotation *= np.sign(np.linalg.det(rotation))
+    frames = (capsule.vertices @ rotation.T + [0.2, -0.1, 0.3])[None]
+    lift = Lift(capsule_proxy, capsule)
+    lifted, (report,) = lift(frames)
+    plain, _ = Lift(capsule_proxy, capsule, config=LiftConfig(refine_rounds=0))(frames)
+    assert lift.refinements == 0 and lift.proxy is capsule_proxy
+    np.testing.assert_array_equal(lifted, plain)
+    assert report.residual_max < 1e-6
+
+
+def test_refine_rounds_bound_the_refinement(tube):
+    """One round at most with ``refine_rounds=1``, and a residual target no proxy meets stops at the bound."""
+    from nerfedit_plugin.edit.lift import LiftConfig
+
+    rest, proxy, frames = tube
+    lift = Lift(proxy, rest, config=LiftConfig(refine_rounds=1, residual_target=1e-9))
+    lifted, (report,) = lift(frames)
+    assert lift.refinements == 1 and lift.proxy.info["refinements"] == 1
+    assert lifted.shape[1] == len(lift.proxy.vertices) and report.inverted_tets == 0

@@ -212,7 +212,7 @@ def test_tet_arap_runs_the_configured_solver_warm_started(grid, iterations, tole
     """Frame 0 starts from the knn3 lift, frame 1 from frame 0's result; the solver has the config's constraint
     weight, iteration cap and tolerance."""
     rest, proxy = grid
-    config = LiftConfig(constraint_weight=30.0, max_iterations=iterations, tolerance=tolerance)
+    config = LiftConfig(constraint_weight=30.0, max_iterations=iterations, tolerance=tolerance, refine_rounds=0)
     frames = np.stack([mild(rest), mild(rest) * 1.05 + 0.02])
     lifted, reports = Lift(proxy, rest, config=config)(frames)
     solver = ArapSolver(
@@ -318,7 +318,7 @@ def test_inversion_free_relift_keeps_arap_where_it_does_not_fold(grid):
     weight and Newton settings, started from frame 0 (which folds nothing), with ARAP's iterations added."""
     rest, proxy = grid
     frames = np.stack([mild(rest), folding(rest)])
-    settings = dict(constraint_weight=500.0, injective_max_iterations=4, injective_tolerance=1e-3)
+    settings = dict(constraint_weight=500.0, injective_max_iterations=4, injective_tolerance=1e-3, refine_rounds=0)
     old, old_reports = Lift(proxy, rest, config=LiftConfig(injective=False, **settings))(frames)
     new, new_reports = Lift(proxy, rest, config=LiftConfig(**settings))(frames)
     assert old_reports[0].inverted_tets == 0 and old_reports[1].inverted_tets > 0
@@ -338,12 +338,12 @@ def test_inversion_free_relift_starts_from_the_last_unfolded_state(grid, iterati
     """``unfolded`` starts from ``previous`` only when it folds nothing; else, and without one, from the rest proxy.
     Newton runs with the config's cap and tolerance (0.2 stops early: the solver's default would not)."""
     rest, proxy = grid
-    config = LiftConfig(injective_max_iterations=iterations, injective_tolerance=tolerance)
+    config = LiftConfig(injective_max_iterations=iterations, injective_tolerance=tolerance, refine_rounds=0)
     lift = Lift(proxy, rest, config=config)
     target = folding(rest)
     solver = InjectiveSolver(proxy.vertices, proxy.tets, proxy.embedding_matrix(), 1000.0)
     unfolded = proxy.vertices * [1.1, 1.0, 0.9]
-    folded = Lift(proxy, rest, config=LiftConfig(injective=False))(target[None])[0][0]
+    folded = Lift(proxy, rest, config=LiftConfig(injective=False, refine_rounds=0))(target[None])[0][0]
     assert lift.folds(folded) > 0 and lift.folds(unfolded) == 0
     for previous, start in ((None, proxy.vertices), (folded, proxy.vertices), (unfolded, unfolded)):
         got, count = lift.unfolded(target, previous, 5)
@@ -413,6 +413,9 @@ def test_frames_are_read_as_float64():
         ("injective_max_iterations", 0, "a positive integer"),
         ("injective_tolerance", -1e-300, "a number >= 0"),
         ("injective_tolerance", np.inf, "a number >= 0"),
+        ("residual_target", 0.0, "a positive number"),
+        ("residual_target", np.inf, "a positive number"),
+        ("refine_rounds", -1, "an integer >= 0"),
     ],
 )
 def test_lift_config_rejects(option, value, expected):
@@ -422,6 +425,7 @@ def test_lift_config_rejects(option, value, expected):
 
 
 def test_lift_config_accepts_the_boundaries():
-    config = LiftConfig(0.5, 1, 0.0, False, 1, 0.0)
+    config = LiftConfig(0.5, 1, 0.0, False, 1, 0.0, 1e-300, 0)
     assert (config.constraint_weight, config.max_iterations, config.injective_max_iterations) == (0.5, 1, 1)
+    assert (config.residual_target, config.refine_rounds) == (1e-300, 0)
     LiftConfig(tolerance=1e300, injective_tolerance=1e300, constraint_weight=1e300)
