@@ -34,6 +34,9 @@ from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
+MAX_BISECTIONS = 2
+"""Bisections of a tet per refinement round at most (a fit missing by 16× the target needs two)."""
+
 
 @dataclasses.dataclass
 class LiftConfig:
@@ -55,11 +58,11 @@ class LiftConfig:
     """Stop an inversion-free re-lift when an iteration lowers its energy by less than this fraction."""
     residual_target: float = 2e-3
     """tet-arap: where the lifted proxy misses a surface vertex by more than this × the rest bbox diagonal (the
-    piecewise-affine fit is too coarse there), the tets holding such vertices are bisected and every frame is
-    lifted again, warm-started from the previous lift."""
+    piecewise-affine fit is too coarse there), the tets holding such vertices are bisected (once per factor 4 of
+    excess) and every frame is lifted again, warm-started from the previous lift; repeated while some vertex misses."""
     refine_rounds: int = 3
-    """tet-arap: refinements of the proxy at most (each halves the edges of the tets it marks); 0 keeps the proxy
-    as built."""
+    """tet-arap: refine-and-lift-again rounds at most (each bisects the marked tets up to :data:`MAX_BISECTIONS`
+    times); 0 keeps the proxy as built."""
 
     def __post_init__(self) -> None:
         weight, iterations, tolerance = self.constraint_weight, self.max_iterations, self.tolerance
@@ -135,7 +138,7 @@ class Lift:
             raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
         if method == "tet-edit" and (edit is None or not edit.handles):
             raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
-        self.refinements = 0
+        self.refinements = 0  # bisections of the proxy done (self.proxy is the refined one)
         self._bind(proxy)
 
     def _bind(self, proxy: TetProxy) -> None:
@@ -221,14 +224,13 @@ class Lift:
             seconds=seconds,
         )
 
-    def misfit_tets(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
-        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (K,) bool: the tets holding a surface vertex
-        whose residual exceeds ``residual_target`` in some frame."""
+    def bisections_needed(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (V,) int64: per surface vertex, the
+        bisections of its tet expected to bring its worst residual within ``residual_target``: ⌈log₄(residual /
+        target)⌉, 0 where it is within (a linear fit's error falls as h², by about 4 per halving)."""
         target = self.config.residual_target * self.rest.bbox_diagonal
-        residual = np.stack([np.linalg.norm(self.embedding @ x - v, axis=1) for x, v in zip(lifted, frames)])
-        marked = np.zeros(len(self.proxy.tets), dtype=bool)
-        marked[self.proxy.embed_tets[(residual > target).any(axis=0)]] = True
-        return marked
+        residual = np.max([np.linalg.norm(self.embedding @ x - v, axis=1) for x, v in zip(lifted, frames)], axis=0)
+        return np.ceil(np.log(np.maximum(residual / target, 1.0)) / np.log(4.0)).astype(np.int64)
 
     def _lift(self, frames: np.ndarray, starts: np.ndarray | None) -> tuple[np.ndarray, list[FrameReport]]:
         out, reports, previous = [], [], None
@@ -246,14 +248,20 @@ class Lift:
         after a refinement (tet-arap), from their own lift prolonged onto the refined proxy, now ``self.proxy``."""
         frames = np.asarray(frames, dtype=np.float64)
         lifted, reports = self._lift(frames, None)
-        while self.method == "tet-arap" and self.refinements < self.config.refine_rounds:
-            marked = self.misfit_tets(lifted, frames)
-            if not marked.any():
+        for _ in range(self.config.refine_rounds if self.method == "tet-arap" else 0):
+            need = np.minimum(self.bisections_needed(lifted, frames), MAX_BISECTIONS)
+            if not need.any():
                 break
-            refinement = bisect(self.proxy.vertices, self.proxy.tets, marked)
-            self._bind(self.proxy.refined(refinement, self.rest))
-            self.refinements += 1
-            lifted, again = self._lift(frames, np.stack([refinement.prolong(x) for x in lifted]))
+            proxy = self.proxy
+            for level in range(int(need.max())):
+                marked = np.zeros(len(proxy.tets), dtype=bool)
+                marked[proxy.embed_tets[need > level]] = True
+                refinement = bisect(proxy.vertices, proxy.tets, marked)
+                proxy = proxy.refined(refinement, self.rest)
+                lifted = np.stack([refinement.prolong(x) for x in lifted])
+                self.refinements += 1
+            self._bind(proxy)
+            lifted, again = self._lift(frames, lifted)
             reports = [
                 dataclasses.replace(new, iterations=old.iterations + new.iterations, seconds=old.seconds + new.seconds)
                 for old, new in zip(reports, again)

@@ -328,11 +328,12 @@ def test_no_refinement_where_the_built_proxy_fits(capsule, capsule_proxy):
 
 
 def test_refine_rounds_bound_the_refinement(tube):
-    """One round at most with ``refine_rounds=1``, and a residual target no proxy meets stops at the bound."""
-    from nerfedit_plugin.edit.lift import LiftConfig
+    """A residual target no proxy meets stops at the bound: one round with ``refine_rounds=1``, of MAX_BISECTIONS
+    bisections."""
+    from nerfedit_plugin.edit.lift import MAX_BISECTIONS, LiftConfig
 
     rest, proxy, frames = tube
     lift = Lift(proxy, rest, config=LiftConfig(refine_rounds=1, residual_target=1e-9))
     lifted, (report,) = lift(frames)
-    assert lift.refinements == 1 and lift.proxy.info["refinements"] == 1
+    assert lift.refinements == MAX_BISECTIONS == lift.proxy.info["refinements"] == 2
     assert lifted.shape[1] == len(lift.proxy.vertices) and report.inverted_tets == 0
