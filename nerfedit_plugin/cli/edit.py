@@ -70,6 +70,7 @@ def edit(args: EditArgs) -> None:
             lift_config=args.lift_options,
             proxy_config=args.proxy,
             camera_distance=distance,
+            source_to_world=None if run is None else run.source_transform(),
             cache_dir=args.cache_dir,
             proxy_from=args.proxy_from,
             overwrite=args.overwrite,

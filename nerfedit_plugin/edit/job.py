@@ -16,6 +16,8 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.edit.deformer import DeformerConfig
@@ -82,6 +84,7 @@ def run_edit(
     lift_config: LiftConfig | None = None,
     proxy_config: ProxyConfig | None = None,
     camera_distance: float | None = None,
+    source_to_world: np.ndarray | None = None,
     cache_dir: str | os.PathLike | None = None,
     proxy_from: str | os.PathLike | None = None,
     overwrite: bool = False,
@@ -90,7 +93,9 @@ def run_edit(
 ) -> EditResult:
     """Run one edit end to end; ``record`` is the full config written to ``config.yml``. ``lift_config`` and
     ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``. ``proxy_from`` (an earlier edit's folder or
-    ``deformation.npz``) reuses its proxy instead of building one (:func:`reuse_proxy`)."""
+    ``deformation.npz``) reuses its proxy instead of building one (:func:`reuse_proxy`). ``source_to_world`` (4,4):
+    where a spec with ``frame: source`` is mapped from (a run's :meth:`~nerfedit_plugin.io.run.Run.source_transform`;
+    None: the identity, the mesh is its own source)."""
     lift_config = LiftConfig() if lift_config is None else lift_config
     proxy_config = ProxyConfig() if proxy_config is None else proxy_config
     clock = Stopwatch(on_stage)
@@ -98,6 +103,7 @@ def run_edit(
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
         target_cls = deformer._target
         spec = load_edit_spec(edit, target_cls.spec_keys)
+        spec = spec.in_world(np.eye(4) if source_to_world is None else source_to_world)
     with atomic_dir(out, overwrite=overwrite) as stage:
         with clock.stage("bind"):
             model = deformer.setup()

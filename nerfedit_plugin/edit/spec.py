@@ -6,11 +6,14 @@ or moves them by a transform. At interpolation time t ∈ [0, 1] a transform map
 ``x ↦ c + (1 + (s − 1)t) R(t)(x − c) + t·translate`` where ``R(t)`` rotates by ``t·degrees`` about ``axis``
 (slerp from the identity) and the pivot ``c`` is ``rotate.center`` or else the selection's rest centroid.
 ``frames = n`` gives t = 0, 1/(n−1), …, 1 (frame 0 is the rest pose); ``frames = 1`` gives t = 1.
+``frame: source`` says the handles' coordinates are those of the mesh the data was generated from (the generator
+rotates and normalises it); :meth:`EditSpec.in_world` maps them onto the rest mesh.
 Every malformed spec raises :class:`NerfEditError` naming the file and the key before any work is done.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -26,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from nerfedit_plugin.errors import NerfEditError
 
 SELECT_KINDS = ("box", "sphere", "indices")
+FRAMES = ("world", "source")
 
 
 def spec_error(source: str, key: str, problem: str) -> NerfEditError:
@@ -85,14 +89,19 @@ def number(value: Any, source: str, key: str, positive: bool = False) -> float:
 
 @dataclass(frozen=True)
 class Selection:
-    """Which rest points a handle grabs: ``box`` (min/max corners), ``sphere`` (center/radius) or ``indices``."""
+    """Which rest points a handle grabs: ``box`` (min/max corners), ``sphere`` (center/radius) or ``indices``;
+    ``to_spec`` (4,4) float64 or None: the similarity taking rest points into the frame the box or sphere is given in
+    (set by :meth:`EditSpec.in_world`)."""
 
     kind: str
     params: dict
     key: str
+    to_spec: np.ndarray | None = None
 
     def indices(self, points: np.ndarray, source: str) -> np.ndarray:
         """Sorted indices of the selected points; an empty or out-of-range selection is an error."""
+        if self.to_spec is not None and self.kind != "indices":
+            points = points @ self.to_spec[:3, :3].T + self.to_spec[:3, 3]
         if self.kind == "box":
             inside = np.all((points >= self.params["min"]) & (points <= self.params["max"]), axis=1)
             idx = np.flatnonzero(inside)
@@ -124,6 +133,15 @@ class Transform:
         s = 1.0 + (self.scale - 1.0) * t
         return c + s * (points - c) @ rot.T + t * self.translate
 
+    def conjugated(self, matrix: np.ndarray) -> Transform:
+        """This transform given in a frame that the similarity ``matrix`` (4,4) float64, ``x ↦ sRx + b``, maps into
+        the rest points' frame → the same motion there, ``M ∘ T ∘ M⁻¹``: pivot ``M c``, rotation vector ``R r``,
+        translation ``sR τ``, same scale (a pivot left to the selection's centroid stays so: ``M`` keeps centroids)."""
+        linear = matrix[:3, :3]
+        rotation = linear / np.cbrt(np.linalg.det(linear))
+        center = None if self.center is None else linear @ self.center + matrix[:3, 3]
+        return Transform(linear @ self.translate, rotation @ self.rotvec, center, self.scale)
+
 
 @dataclass(frozen=True)
 class Handle:
@@ -142,6 +160,34 @@ class EditSpec:
     """Whether the spec set ``frames`` (a deformer with its own timeline, e.g. a BVH clip, uses it when not)."""
     source: str = "<edit spec>"
     base_dir: Path = Path(".")
+    frame: str = "world"
+    """The frame of the handles' boxes, spheres and transforms: ``world`` (the rest mesh's own coordinates) or
+    ``source`` (the mesh the data was generated from: :meth:`in_world` maps them)."""
+
+    def in_world(self, source_to_world: np.ndarray) -> EditSpec:
+        """This spec with its handles mapped from the ``source`` frame into the world by the similarity
+        ``source_to_world`` (4,4) float64 (``x ↦ sRx + b``, s > 0, R a rotation): selections test the rest points
+        mapped back into the source frame, transforms are conjugated (:meth:`Transform.conjugated`). A ``world``
+        spec is returned as it is. A matrix that is not such a similarity is a :class:`NerfEditError`."""
+        if self.frame == "world":
+            return self
+        matrix = np.asarray(source_to_world, dtype=np.float64)
+        linear = matrix[:3, :3] if matrix.shape == (4, 4) else np.zeros((3, 3))
+        scale = np.cbrt(np.linalg.det(linear))
+        similar = matrix.shape == (4, 4) and np.isfinite(matrix).all() and scale > 0
+        if not (similar and np.allclose(linear.T @ linear, scale**2 * np.eye(3), rtol=0, atol=1e-9 * scale**2)):
+            raise spec_error(self.source, "frame", "the source-to-world transform is not a similarity")
+        inverse = np.eye(4)
+        inverse[:3, :3] = linear.T / scale**2
+        inverse[:3, 3] = -inverse[:3, :3] @ matrix[:3, 3]
+        handles = tuple(
+            Handle(
+                dataclasses.replace(handle.selection, to_spec=inverse),
+                None if handle.transform is None else handle.transform.conjugated(matrix),
+            )
+            for handle in self.handles
+        )
+        return dataclasses.replace(self, handles=handles, frame="world")
 
     @property
     def times(self) -> np.ndarray:
@@ -270,8 +316,9 @@ def parse_edit_spec(
     source: str = "<edit spec>",
     base_dir: str | os.PathLike = ".",
 ) -> EditSpec:
-    """Validate a spec mapping. ``allowed_keys``: the top-level keys the deformer accepts (``frames`` always is)."""
-    allowed = set(allowed_keys) | {"frames"}
+    """Validate a spec mapping. ``allowed_keys``: the top-level keys the deformer accepts (``frames`` and ``frame``
+    always are)."""
+    allowed = set(allowed_keys) | {"frames", "frame"}
     check_keys(data, allowed, source, "")
     frames = data.get("frames", 1)
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
@@ -291,8 +338,11 @@ def parse_edit_spec(
                 raise spec_error(source, key, "needs exactly one of 'fixed': true or a 'transform'")
             transform = None if fixed else _parse_transform(item["transform"], source, f"{key}.transform")
             handles.append(Handle(selection, transform))
-    extra = {k: v for k, v in data.items() if k not in ("handles", "frames")}
-    return EditSpec(tuple(handles), frames, extra, "frames" in data, source, Path(base_dir))
+    frame = data.get("frame", "world")
+    if frame not in FRAMES:
+        raise spec_error(source, "frame", f"expected one of {list(FRAMES)}, got {frame!r}")
+    extra = {k: v for k, v in data.items() if k not in ("handles", "frames", "frame")}
+    return EditSpec(tuple(handles), frames, extra, "frames" in data, source, Path(base_dir), frame)
 
 
 def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:

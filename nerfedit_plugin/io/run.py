@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from nerfedit_plugin.config import read_config, to_plain, write_config
@@ -88,6 +89,25 @@ class Run:
         box = transforms.meta.get("aabb")
         center = torch.tensor(box, dtype=torch.float64).mean(0) if box is not None else centers.mean(0)
         return float(torch.linalg.norm(centers - center, dim=1).mean())
+
+
+    def source_transform(self) -> np.ndarray:
+        """(4,4) float64: the similarity taking the coordinates of the mesh the data was generated from to the run's
+        (the dataset's ``source_transform``, written by ``nerfedit generate``); the identity for data that nerfedit
+        did not transform (a dataset without the record, a mesh file other than a generated dataset's ``mesh.ply``).
+        Edit specs with ``frame: source`` use it."""
+        data = self.data
+        if _is_mesh_file(data):
+            if data.name != MESH or not (data.parent / "transforms_train.json").is_file():
+                return np.eye(4)
+            data = data.parent  # the mesh of a generated dataset: the dataset's record
+        recorded = read_transforms(data, "train").meta.get("source_transform")
+        if recorded is None:
+            return np.eye(4)
+        matrix = np.asarray(recorded, dtype=np.float64)
+        if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
+            raise NerfEditError(f"{self.data}: source_transform: expected a 4×4 matrix of numbers")
+        return matrix
 
 
 def open_run(path: str | os.PathLike) -> Run:

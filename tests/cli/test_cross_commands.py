@@ -40,6 +40,23 @@ def flow(capsule, proxy_cache, tmp_path_factory):
     return root
 
 
+def test_edit_run_maps_a_source_frame_spec_by_the_generators_transform(flow, proxy_cache):
+    """The capsule (z in [−1, 1]) was normalised by ½ into the run's world: the edit of the fixture given in the
+    capsule's own coordinates (``frame: source``: boxes and translation doubled) is the same edit."""
+    source = {
+        "frame": "source",
+        "handles": [
+            {"select": {"box": {"min": [-2, -2, -2], "max": [2, 2, -0.5]}}, "fixed": True},
+            {"select": {"box": {"min": [-2, -2, 0.5], "max": [2, 2, 2]}}, "transform": {"translate": [0.3, 0, 0]}},
+        ],
+    }
+    (flow / "source.json").write_text(json.dumps(source))
+    out = flow / "edit-source"
+    run("edit", "--run", flow / "run", "--edit", flow / "source.json", "--out", out, "--cache-dir", proxy_cache)
+    deformed = [trimesh.load(folder / "deformed_mesh.ply", process=False).vertices for folder in (out, flow / "edit")]
+    np.testing.assert_allclose(deformed[0], deformed[1], atol=1e-9)
+
+
 def pngs(folder):
     return {p.name: p.read_bytes() for p in sorted(folder.glob("*.png"))}
 

@@ -237,7 +237,7 @@ def handle(select=None, **rest):
 EXACT = [  # (spec, the whole error message after "e.json: ")
     ({"handles": [handle(), 5]}, "handles[1]: expected a mapping, got int"),
     ([1, 2], ": expected a mapping, got list"),
-    ({"handles": [handle()], "bogus": 1}, "bogus: unknown key (expected one of ['frames', 'handles'])"),
+    ({"handles": [handle()], "bogus": 1}, "bogus: unknown key (expected one of ['frame', 'frames', 'handles'])"),
     ({"handles": [{"fixed": True}]}, "handles[0].select: missing"),
     ({"handles": [handle({"box": {"min": [0, 0, 0]}})]}, "handles[0].select.box.max: missing"),
     (
