@@ -35,7 +35,6 @@ class Refinement:
         positions = np.asarray(positions, dtype=np.float64)
         return np.concatenate([positions, positions[self.edges].mean(axis=1)])
 
-
     def locate(self, points: np.ndarray, coarse: np.ndarray, bary: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """points (M,3) float64 in the coarse tets ``coarse (M,)`` int64 with barycentrics ``bary (M,4)`` float64 there
         → ``(tet (M,) int64, bary (M,4) float64)`` in the refined mesh: a point of an uncut tet keeps its barycentrics
