@@ -1,8 +1,8 @@
 """Edit specs (docs/architecture.md, "Edit spec"): handle selections, transforms and frame interpolation, from JSON
 or YAML.
 
-A handle selects rest-space points (``box``, ``sphere`` or ``indices``) and either pins them (``"fixed": true``)
-or moves them by a transform. At interpolation time t ∈ [0, 1] a transform maps
+A handle selects rest-space points (``box``, ``sphere``, ``indices`` or a selection ``file``) and either pins them
+(``"fixed": true``) or moves them by a transform. At interpolation time t ∈ [0, 1] a transform maps
 ``x ↦ c + (1 + (s − 1)t) R(t)(x − c) + t·translate`` where ``R(t)`` rotates by ``t·degrees`` about ``axis``
 (slerp from the identity) and the pivot ``c`` is ``rotate.center`` or else the selection's rest centroid.
 ``frames = n`` gives t = 0, 1/(n−1), …, 1 (frame 0 is the rest pose); ``frames = 1`` gives t = 1.
@@ -26,9 +26,10 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from nerfedit_plugin.edit.selection_file import read_selection
 from nerfedit_plugin.errors import NerfEditError
 
-SELECT_KINDS = ("box", "sphere", "indices")
+SELECT_KINDS = ("box", "sphere", "indices", "file")
 FRAMES = ("world", "source")
 
 
@@ -89,7 +90,8 @@ def number(value: Any, source: str, key: str, positive: bool = False) -> float:
 
 @dataclass(frozen=True)
 class Selection:
-    """Which rest points a handle grabs: ``box`` (min/max corners), ``sphere`` (center/radius) or ``indices``;
+    """Which rest points a handle grabs: ``box`` (min/max corners), ``sphere`` (center/radius), ``indices`` or a
+    selection ``file`` (:mod:`~nerfedit_plugin.edit.selection_file`; its positions are in the spec's frame);
     ``to_spec`` (4,4) float64 or None: the similarity taking rest points into the frame the box or sphere is given in
     (set by :meth:`EditSpec.in_world`)."""
 
@@ -100,13 +102,16 @@ class Selection:
 
     def indices(self, points: np.ndarray, source: str) -> np.ndarray:
         """Sorted indices of the selected points; an empty or out-of-range selection is an error."""
+        placed = points
         if self.to_spec is not None and self.kind != "indices":
-            points = points @ self.to_spec[:3, :3].T + self.to_spec[:3, 3]
-        if self.kind == "box":
-            inside = np.all((points >= self.params["min"]) & (points <= self.params["max"]), axis=1)
+            placed = points @ self.to_spec[:3, :3].T + self.to_spec[:3, 3]
+        if self.kind == "file":
+            idx = self.params["file"].resolve(points, placed)
+        elif self.kind == "box":
+            inside = np.all((placed >= self.params["min"]) & (placed <= self.params["max"]), axis=1)
             idx = np.flatnonzero(inside)
         elif self.kind == "sphere":
-            dist = np.linalg.norm(points - self.params["center"], axis=1)
+            dist = np.linalg.norm(placed - self.params["center"], axis=1)
             idx = np.flatnonzero(dist <= self.params["radius"])
         else:
             idx = self.params["indices"]
@@ -230,14 +235,7 @@ class EditSpec:
         return resolved
 
     def _resolve(self, value: Any, key: str) -> Path:
-        """``base_dir / value`` resolved; a name the OS cannot represent (a NUL byte, longer than the file system
-        allows) is a spec error."""
-        try:
-            resolved = (self.base_dir / value).resolve()
-            resolved.is_file()
-        except (OSError, ValueError) as exc:
-            raise spec_error(self.source, key, f"invalid file path {value!r:.200} ({exc!s:.200})") from None
-        return resolved
+        return resolve_path(self.base_dir, value, self.source, key)
 
     def paths(self, key: str) -> list[Path]:
         """Resolve a list of files or one glob pattern under ``key`` (sorted); at least one must exist."""
@@ -260,7 +258,18 @@ class EditSpec:
         raise spec_error(self.source, key, "expected a file, a glob pattern or a non-empty list of files")
 
 
-def _parse_selection(obj: Any, source: str, key: str) -> Selection:
+def resolve_path(base_dir: Path, value: Any, source: str, key: str) -> Path:
+    """``base_dir / value`` resolved; a name the OS cannot represent (a NUL byte, longer than the file system
+    allows) is a spec error naming ``key``."""
+    try:
+        resolved = (base_dir / value).resolve()
+        resolved.is_file()
+    except (OSError, ValueError) as exc:
+        raise spec_error(source, key, f"invalid file path {value!r:.200} ({exc!s:.200})") from None
+    return resolved
+
+
+def _parse_selection(obj: Any, source: str, key: str, base_dir: Path) -> Selection:
     check_keys(obj, SELECT_KINDS, source, key)
     if len(obj) != 1:
         raise spec_error(source, key, f"expected exactly one of {list(SELECT_KINDS)}")
@@ -272,6 +281,11 @@ def _parse_selection(obj: Any, source: str, key: str) -> Selection:
         if np.any(lo > hi):
             raise spec_error(source, key, "min exceeds max")
         return Selection(kind, {"min": lo, "max": hi}, key)
+    if kind == "file":
+        if not isinstance(value, (str, os.PathLike)):
+            raise spec_error(source, key, f"expected a selection file path, got {value!r}")
+        where = f"{source}: {key}"
+        return Selection(kind, {"file": read_selection(resolve_path(base_dir, value, source, key), where)}, key)
     if kind == "sphere":
         check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
         center = vector(value["center"], source, f"{key}.center")
@@ -330,7 +344,7 @@ def parse_edit_spec(
         for i, item in enumerate(data["handles"]):
             key = f"handles[{i}]"
             check_keys(item, ("select", "fixed", "transform"), source, key, required=("select",))
-            selection = _parse_selection(item["select"], source, f"{key}.select")
+            selection = _parse_selection(item["select"], source, f"{key}.select", Path(base_dir))
             fixed = item.get("fixed", False)
             if not isinstance(fixed, bool):
                 raise spec_error(source, f"{key}.fixed", f"expected true or false, got {fixed!r}")
