@@ -36,6 +36,10 @@ LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
 MAX_BISECTIONS = 2
 """Bisections of a tet per refinement round at most (a fit missing by 16× the target needs two)."""
+STUCK = 0.5
+"""A surface vertex whose residual a refinement round did not cut to this share is refined no more: what it misses
+is not the proxy's fit error (a folded surface edit, parts of the surface that cross and move apart). A round that
+cut no vertex's residual so is undone (proxy and lift as before it)."""
 
 
 @dataclasses.dataclass
@@ -59,7 +63,8 @@ class LiftConfig:
     residual_target: float = 2e-3
     """tet-arap: where the lifted proxy misses a surface vertex by more than this × the rest bbox diagonal (the
     piecewise-affine fit is too coarse there), the tets holding such vertices are bisected (once per factor 4 of
-    excess) and every frame is lifted again, warm-started from the previous lift; repeated while some vertex misses."""
+    excess) and every frame is lifted again, warm-started from the previous lift; repeated while some vertex misses
+    and the last round at least halved its residual (:data:`STUCK`)."""
     refine_rounds: int = 3
     """tet-arap: refine-and-lift-again rounds at most (each bisects the marked tets up to :data:`MAX_BISECTIONS`
     times); 0 keeps the proxy as built."""
@@ -224,13 +229,18 @@ class Lift:
             seconds=seconds,
         )
 
-    def bisections_needed(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
-        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (V,) int64: per surface vertex, the
-        bisections of its tet expected to bring its worst residual within ``residual_target``: ⌈log₄(residual /
-        target)⌉, 0 where it is within (a linear fit's error falls as h², by about 4 per halving)."""
-        target = self.config.residual_target * self.rest.bbox_diagonal
+    def residuals(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (V,) float64: each surface vertex's worst
+        residual over the frames, relative to the rest bbox diagonal."""
         residual = np.max([np.linalg.norm(self.embedding @ x - v, axis=1) for x, v in zip(lifted, frames)], axis=0)
-        return np.ceil(np.log(np.maximum(residual / target, 1.0)) / np.log(4.0)).astype(np.int64)
+        return residual / self.rest.bbox_diagonal
+
+    def bisections_needed(self, residual: np.ndarray) -> np.ndarray:
+        """residual (V,) → (V,) int64: per surface vertex, the bisections of its tet expected to bring it within
+        ``residual_target``: ⌈log₄(residual / target)⌉, 0 where it is within (a linear fit's error falls as h², by
+        about 4 per halving)."""
+        excess = np.maximum(residual / self.config.residual_target, 1.0)
+        return np.ceil(np.log(excess) / np.log(4.0)).astype(np.int64)
 
     def _lift(self, frames: np.ndarray, starts: np.ndarray | None) -> tuple[np.ndarray, list[FrameReport]]:
         out, reports, previous = [], [], None
@@ -248,10 +258,13 @@ class Lift:
         after a refinement (tet-arap), from their own lift prolonged onto the refined proxy, now ``self.proxy``."""
         frames = np.asarray(frames, dtype=np.float64)
         lifted, reports = self._lift(frames, None)
+        residual = self.residuals(lifted, frames) if self.method == "tet-arap" else None
+        stuck = np.zeros(len(self.rest.vertices), dtype=bool)
         for _ in range(self.config.refine_rounds if self.method == "tet-arap" else 0):
-            need = np.minimum(self.bisections_needed(lifted, frames), MAX_BISECTIONS)
+            need = np.where(stuck, 0, np.minimum(self.bisections_needed(residual), MAX_BISECTIONS))
             if not need.any():
                 break
+            kept = (self.proxy, self.refinements, lifted, reports)
             proxy = self.proxy
             for level in range(int(need.max())):
                 marked = np.zeros(len(proxy.tets), dtype=bool)
@@ -266,4 +279,11 @@ class Lift:
                 dataclasses.replace(new, iterations=old.iterations + new.iterations, seconds=old.seconds + new.seconds)
                 for old, new in zip(reports, again)
             ]
+            residual, before = self.residuals(lifted, frames), residual
+            improved = (need > 0) & (residual <= STUCK * before)
+            if not improved.any():  # the round helped no vertex: keep the proxy and lift it had
+                proxy, self.refinements, lifted, reports = kept
+                self._bind(proxy)
+                break
+            stuck |= (need > 0) & ~improved  # not the fit's error there: no finer proxy helps these
         return lifted, reports

@@ -356,3 +356,23 @@ def test_refined_lift_fits_closer_and_stays_close_to_the_lift_as_built(capsule, 
         assert new.residual_max < old.residual_max and new.residual_rms < old.residual_rms
         assert new.inverted_tets == new.degenerate_tets == 0
     assert np.abs(refined[:, : len(capsule_proxy.vertices)] - built).max() < 2e-2 * capsule.bbox_diagonal
+
+
+def test_a_round_that_helps_no_vertex_is_undone(capsule, capsule_proxy):
+    """Two coincident surface vertices sent 0.1 apart: no map of space fits both, however fine the proxy. The
+    refinement round cuts no residual by half, so it is undone: the proxy as built, the lift as without refinement."""
+    from nerfedit_plugin.edit.lift import LiftConfig
+    from nerfedit_plugin.edit.proxy import proxy_from_tets
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    twin = SurfaceMesh(np.concatenate([capsule.vertices, capsule.vertices[:1]]), capsule.faces)
+    proxy = proxy_from_tets(capsule_proxy.vertices, capsule_proxy.tets, twin, "test")
+    frame = twin.vertices.copy()
+    frame[0] += [0.05, 0, 0]
+    frame[-1] -= [0.05, 0, 0]
+    lift = Lift(proxy, twin)
+    lifted, (report,) = lift(frame[None])
+    plain, (expected,) = Lift(proxy, twin, config=LiftConfig(refine_rounds=0))(frame[None])
+    assert report.residual_max > 2e-3 and lift.refinements == 0 and lift.proxy is proxy
+    np.testing.assert_array_equal(lifted, plain)
+    assert report.residual_max == expected.residual_max
