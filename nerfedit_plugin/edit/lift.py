@@ -138,6 +138,9 @@ class Lift:
         self.rest, self.method, self.config = rest, method, config
         self.deformer, self.edit = deformer, edit
         self.rest_normals = face_normals(rest.vertices, rest.faces)
+        self.surface = np.unique(rest.faces)
+        """The surface vertices (those of a face): the constraints and residuals of the lift (a stray vertex,
+        which no deformer is bound to move with its neighbours, would pull the proxy apart)."""
         if method == "direct" and (deformer is None or not deformer.supports_points()):
             name = type(deformer).__name__ if deformer is not None else "no deformer"
             raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
@@ -149,7 +152,7 @@ class Lift:
     def _bind(self, proxy: TetProxy) -> None:
         """Set up the lift on ``proxy``: the embedding, and for the ARAP lifts the factored solver."""
         self.proxy = proxy
-        self.embedding = proxy.embedding_matrix()
+        self.embedding = proxy.embedding_matrix()[self.surface]
         self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
         self.injective: InjectiveSolver | None = None  # built on the first fold
         if self.method == "tet-arap":
@@ -179,11 +182,11 @@ class Lift:
             targets = self.handle_targets[index]
             result = self.solver.solve(fixed_positions=targets, initial=previous, **kwargs)
         else:
-            targets = surface
+            targets = surface[self.surface]
             initial = previous
             if initial is None:
                 initial = proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices)
-            result = self.solver.solve(constraint_targets=surface, initial=initial, **kwargs)
+            result = self.solver.solve(constraint_targets=targets, initial=initial, **kwargs)
         if not self.config.injective or self.folds(result.vertices) == 0:
             return result.vertices, result.iterations
         return self.unfolded(targets, previous, result.iterations)
@@ -215,7 +218,7 @@ class Lift:
         ``|A t' − v'|`` per surface vertex, relative to the rest bbox diagonal; inverted / degenerate tets by signed
         volume; surface faces turned by more than 90°)."""
         scale = self.rest.bbox_diagonal
-        residual = np.linalg.norm(self.embedding @ deformed - surface, axis=1) / scale
+        residual = np.linalg.norm(self.embedding @ deformed - surface[self.surface], axis=1) / scale
         volumes = tet_signed_volumes(deformed, self.proxy.tets)
         tiny = 1e-9 * np.abs(self.rest_volumes).mean()
         flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
@@ -230,13 +233,15 @@ class Lift:
         )
 
     def residuals(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
-        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (V,) float64: each surface vertex's worst
-        residual over the frames, relative to the rest bbox diagonal."""
-        residual = np.max([np.linalg.norm(self.embedding @ x - v, axis=1) for x, v in zip(lifted, frames)], axis=0)
+        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (S,) float64: the worst residual over the
+        frames of each surface vertex (``self.surface``), relative to the rest bbox diagonal."""
+        residual = np.max(
+            [np.linalg.norm(self.embedding @ x - v[self.surface], axis=1) for x, v in zip(lifted, frames)], axis=0
+        )
         return residual / self.rest.bbox_diagonal
 
     def bisections_needed(self, residual: np.ndarray) -> np.ndarray:
-        """residual (V,) → (V,) int64: per surface vertex, the bisections of its tet expected to bring it within
+        """residual (S,) → (S,) int64: per surface vertex, the bisections of its tet expected to bring it within
         ``residual_target``: ⌈log₄(residual / target)⌉, 0 where it is within (a linear fit's error falls as h², by
         about 4 per halving)."""
         excess = np.maximum(residual / self.config.residual_target, 1.0)
@@ -259,7 +264,7 @@ class Lift:
         frames = np.asarray(frames, dtype=np.float64)
         lifted, reports = self._lift(frames, None)
         residual = self.residuals(lifted, frames) if self.method == "tet-arap" else None
-        stuck = np.zeros(len(self.rest.vertices), dtype=bool)
+        stuck = np.zeros(len(self.surface), dtype=bool)
         for _ in range(self.config.refine_rounds if self.method == "tet-arap" else 0):
             need = np.where(stuck, 0, np.minimum(self.bisections_needed(residual), MAX_BISECTIONS))
             if not need.any():
@@ -268,7 +273,7 @@ class Lift:
             proxy = self.proxy
             for level in range(int(need.max())):
                 marked = np.zeros(len(proxy.tets), dtype=bool)
-                marked[proxy.embed_tets[need > level]] = True
+                marked[proxy.embed_tets[self.surface[need > level]]] = True
                 refinement = bisect(proxy.vertices, proxy.tets, marked)
                 proxy = proxy.refined(refinement, self.rest)
                 lifted = np.stack([refinement.prolong(x) for x in lifted])

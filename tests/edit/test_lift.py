@@ -359,13 +359,17 @@ def test_refined_lift_fits_closer_and_stays_close_to_the_lift_as_built(capsule, 
 
 
 def test_a_round_that_helps_no_vertex_is_undone(capsule, capsule_proxy):
-    """Two coincident surface vertices sent 0.1 apart: no map of space fits both, however fine the proxy. The
-    refinement round cuts no residual by half, so it is undone: the proxy as built, the lift as without refinement."""
+    """Two coincident surface vertices (vertex 0 split into a seam: one of its faces takes a copy) sent 0.1 apart: no
+    map of space fits both, however fine the proxy. The refinement round cuts no residual by half, so it is undone:
+    the proxy as built, the lift as without refinement."""
     from nerfedit_plugin.edit.lift import LiftConfig
     from nerfedit_plugin.edit.proxy import proxy_from_tets
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
-    twin = SurfaceMesh(np.concatenate([capsule.vertices, capsule.vertices[:1]]), capsule.faces)
+    faces = capsule.faces.copy()
+    face = np.flatnonzero((faces == 0).any(axis=1))[0]
+    faces[face][faces[face] == 0] = capsule.n_vertices
+    twin = SurfaceMesh(np.concatenate([capsule.vertices, capsule.vertices[:1]]), faces)
     proxy = proxy_from_tets(capsule_proxy.vertices, capsule_proxy.tets, twin, "test")
     frame = twin.vertices.copy()
     frame[0] += [0.05, 0, 0]
@@ -376,3 +380,18 @@ def test_a_round_that_helps_no_vertex_is_undone(capsule, capsule_proxy):
     assert report.residual_max > 2e-3 and lift.refinements == 0 and lift.proxy is proxy
     np.testing.assert_array_equal(lifted, plain)
     assert report.residual_max == expected.residual_max
+
+
+def test_stray_vertices_do_not_pull_the_lift(capsule, capsule_proxy):
+    """A vertex of no face (sample meshes have them: the airplane's pulled its wings' lift to 7e-2 × bbox) is not a
+    constraint: the surface moved rigidly while a stray vertex stays put lifts to that rigid motion."""
+    from nerfedit_plugin.edit.proxy import proxy_from_tets
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    stray = SurfaceMesh(np.concatenate([capsule.vertices, [[0.0, 0.0, 0.3]]]), capsule.faces)
+    proxy = proxy_from_tets(capsule_proxy.vertices, capsule_proxy.tets, stray, "test")
+    frame = np.concatenate([capsule.vertices @ ROT.T + SHIFT, [[0.0, 0.0, 0.3]]])
+    lift = Lift(proxy, stray)
+    lifted, (report,) = lift(frame[None])
+    assert lift.refinements == 0 and report.residual_max < 1e-6
+    np.testing.assert_allclose(lifted[0], proxy.vertices @ ROT.T + SHIFT, atol=1e-6)
