@@ -39,6 +39,11 @@ class RenderConfig:
     transmittance is at most this (what they skip adds at most this much colour); 0 composites every sample."""
     cos_anneal: float = 1.0
     """SDF fields: NeuS cosine annealing ratio in [0, 1]; 1 is the unbiased estimate (trainers ramp it up from 0)."""
+    bend_view_directions: bool = True
+    """With a deformation, carry each ray's direction ``d`` into canonical space by the bending Jacobian ``J`` of its
+    samples (volume-rendered fields): the colour is queried with ``normalize(J d)`` and the NeuS cosine is
+    ``c = d · Jᵀ∇f(x_c) = (J d) · ∇f(x_c)``. False keeps ``d`` as it is (the paper's choice; an ablation): colour
+    queried with ``d``, cosine ``c = d · ∇f(x_c)``, which is wrong by the rotation of the part the sample lies in."""
 
 
 VOLUME_SEGMENT = 32
@@ -189,7 +194,8 @@ def _samples(field: Field, origins, directions, t, delta, config: RenderConfig, 
     (bent, packed, queried; dropped samples get α = 0)."""
     n_rays, n = t.shape
     points = (origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
-    kept = _keep(field, points, deformation, frame, jacobian=field.kind == "sdf" or field.view_dependent)
+    bent = config.bend_view_directions and (field.kind == "sdf" or field.view_dependent)
+    kept = _keep(field, points, deformation, frame, jacobian=bent)
     ray = torch.div(kept.index, n, rounding_mode="floor")
     ray_dirs = directions.index_select(0, ray)
     query_dirs = _canonical_directions(ray_dirs, kept.jacobian) if field.view_dependent else ray_dirs
