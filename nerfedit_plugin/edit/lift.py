@@ -36,7 +36,7 @@ LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
 MAX_BISECTIONS = 2
 """Bisections of a tet per refinement round at most (a fit missing by 16× the target needs two)."""
-STUCK = 0.5
+STUCK = 0.8
 """A surface vertex whose residual a refinement round did not cut to this share is refined no more: what it misses
 is not the proxy's fit error (a folded surface edit, parts of the surface that cross and move apart). A round that
 cut no vertex's residual so is undone (proxy and lift as before it)."""
@@ -64,7 +64,7 @@ class LiftConfig:
     """tet-arap: where the lifted proxy misses a surface vertex by more than this × the rest bbox diagonal (the
     piecewise-affine fit is too coarse there), the tets holding such vertices are bisected (once per factor 4 of
     excess) and every frame is lifted again, warm-started from the previous lift; repeated while some vertex misses
-    and the last round at least halved its residual (:data:`STUCK`)."""
+    and the last round cut its residual by a fifth at least (:data:`STUCK`)."""
     refine_rounds: int = 3
     """tet-arap: refine-and-lift-again rounds at most (each bisects the marked tets up to :data:`MAX_BISECTIONS`
     times); 0 keeps the proxy as built."""

@@ -360,7 +360,7 @@ def test_refined_lift_fits_closer_and_stays_close_to_the_lift_as_built(capsule, 
 
 def test_a_round_that_helps_no_vertex_is_undone(capsule, capsule_proxy):
     """Two coincident surface vertices (vertex 0 split into a seam: one of its faces takes a copy) sent 0.1 apart: no
-    map of space fits both, however fine the proxy. The refinement round cuts no residual by half, so it is undone:
+    map of space fits both, however fine the proxy. The refinement round cuts no residual by a fifth, so it is undone:
     the proxy as built, the lift as without refinement."""
     from nerfedit_plugin.edit.lift import LiftConfig
     from nerfedit_plugin.edit.proxy import proxy_from_tets
