@@ -90,7 +90,6 @@ class Run:
         center = torch.tensor(box, dtype=torch.float64).mean(0) if box is not None else centers.mean(0)
         return float(torch.linalg.norm(centers - center, dim=1).mean())
 
-
     def source_transform(self) -> np.ndarray:
         """(4,4) float64: the similarity taking the coordinates of the mesh the data was generated from to the run's
         (the dataset's ``source_transform``, written by ``nerfedit generate``); the identity for data that nerfedit
