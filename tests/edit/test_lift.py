@@ -294,7 +294,8 @@ def test_lift_config_checks_the_injective_options():
 # ---- refinement where the fit misses the surface -----------------------------------------------------------------
 def test_refinement_brings_the_tube_edit_within_the_residual_target(tube):
     """The tube's cage edit misses the surface by ~1.7e-2 × bbox on the proxy as built; the default lift refines the
-    proxy where it misses (bisection) until every surface vertex is within ``residual_target`` (2e-3), folding no tet.
+    proxy where it misses (bisection) until the surface is within 2e-3 (the bound asked of the lift; ``residual_target``
+    is 5e-4, which a few vertices near the folds that the inversion-free re-lift unfolds do not reach), folding no tet.
     The refined proxy still embeds the rest surface exactly, and its lift is a frame of the refined proxy."""
     from nerfedit_plugin.edit.lift import LiftConfig
 
