@@ -49,7 +49,8 @@ NOT_LOADED = frozenset({"load_config", "overwrite", "verbose"})
 (a re-run never replaces a folder unless ``--overwrite`` is given again)."""
 
 PATH_STRINGS = frozenset({"mesh"})
-"""``str`` args that name a file unless they are ``sample:NAME`` (recorded absolute, like ``Path`` args)."""
+"""``str`` args that name a file unless they are ``sample:NAME`` or ``shape:NAME`` (recorded absolute, like ``Path``
+args)."""
 
 LOAD_CONFIG = (
     "load_config",
@@ -294,7 +295,7 @@ def recorded(args: Any) -> Any:
     for field in dataclasses.fields(args):
         value = getattr(args, field.name)
         if isinstance(value, Path) or (
-            field.name in PATH_STRINGS and isinstance(value, str) and not value.startswith("sample:")
+            field.name in PATH_STRINGS and isinstance(value, str) and not value.startswith(("sample:", "shape:"))
         ):
             changes[field.name] = type(value)(os.path.abspath(value))
     return dataclasses.replace(args, **changes)

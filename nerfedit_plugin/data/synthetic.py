@@ -22,6 +22,7 @@ import torch
 from nerfedit_plugin.config import write_config
 from nerfedit_plugin.data.cameras import Cameras, generate_rays, sphere_poses
 from nerfedit_plugin.data.datasets import SPLITS, blender_transforms, block_mean, read_transforms, write_rgba
+from nerfedit_plugin.data.shapes import load_scene_mesh
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -33,23 +34,31 @@ FOV_MARGIN = 1.1
 """Automatic field of view: the normalised object's bounding ball, enlarged by this factor, fills the image."""
 
 
-def normalize(mesh: SurfaceMesh) -> SurfaceMesh:
-    """Centre the bounding box at the origin and scale its longest side to 1. Coordinates are rounded to float32
-    (what PLY files store and the ray caster uses), so the mesh written to disk is exactly the one rendered."""
-    low, high = mesh.vertices.min(0), mesh.vertices.max(0)
+def normalization(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """vertices (V,3) float → ``(c (3,) float64, e)``: :func:`normalize` maps ``x ↦ (x − c)/e``, ``c`` the bounding
+    box's centre and ``e`` its longest side."""
+    low, high = vertices.min(0), vertices.max(0)
     extent = float((high - low).max())
     if not extent > 0:
         raise NerfEditError("mesh: all vertices coincide (nothing to render)")
-    vertices = ((mesh.vertices - (low + high) / 2) / extent).astype(np.float32).astype(np.float64)
-    return mesh.with_vertices(vertices)
+    return (low + high) / 2, extent
 
 
-def colorize(mesh: SurfaceMesh, seed: int = 0) -> SurfaceMesh:
+def normalize(mesh: SurfaceMesh) -> SurfaceMesh:
+    """Centre the bounding box at the origin and scale its longest side to 1 (:func:`normalization`). Coordinates are
+    rounded to float32 (what PLY files store and the ray caster uses), so the mesh written to disk is exactly the one
+    rendered."""
+    centre, extent = normalization(mesh.vertices)
+    return mesh.with_vertices(((mesh.vertices - centre) / extent).astype(np.float32).astype(np.float64))
+
+
+def colorize(mesh: SurfaceMesh, seed: int = 0, frequency: float = 1.0) -> SurfaceMesh:
     """A deterministic, smooth, textured-looking vertex colouring, quantised to 8 bits (exact through PLY).
 
     With ``p`` the position in the unit bounding box: per channel, a sum of 6 random plane waves of 1–2.5 cycles
     across the object (smooth 3-D noise), times a soft 3-D checker ``½ + ½ tanh(4 sin 6πp_x sin 6πp_y sin 6πp_z)``
-    that darkens alternate cells to 65 % — a pattern of ~10-pixel features at 100×100 that a field can learn.
+    that darkens alternate cells to 65 % — a pattern of ~10-pixel features at 100×100 that a field can learn;
+    ``frequency`` multiplies the checker's (``sin 6π·frequency·p``: 2.5 gives ~3.5-pixel cells).
     """
     rng = np.random.default_rng(seed)
     low, high = mesh.vertices.min(0), mesh.vertices.max(0)
@@ -59,7 +68,7 @@ def colorize(mesh: SurfaceMesh, seed: int = 0) -> SurfaceMesh:
     phases = rng.uniform(0.0, 2 * math.pi, size=(3, 6))
     noise = np.sin(np.einsum("vd,ckd->vck", p, waves) + phases).sum(-1) / math.sqrt(6.0)
     base = np.clip(0.55 + 0.3 * noise, 0.0, 1.0)
-    checker = 0.5 + 0.5 * np.tanh(4.0 * np.prod(np.sin(6 * math.pi * p), axis=-1))
+    checker = 0.5 + 0.5 * np.tanh(4.0 * np.prod(np.sin(6 * math.pi * frequency * p), axis=-1))
     colors = base * (0.65 + 0.35 * checker)[:, None]
     return SurfaceMesh(mesh.vertices, mesh.faces, np.round(colors * 255.0) / 255.0)
 
@@ -125,7 +134,8 @@ class GenerateConfig:
     out: Path
     """Output dataset folder (must not exist or be empty unless --overwrite)."""
     mesh: str = "sample:bunny"
-    """Mesh to render: a file (PLY/OBJ/OFF/GLB) or sample:NAME (bunny, cow, airplane, bone)."""
+    """Mesh to render: a file (PLY/OBJ/OFF/GLB), sample:NAME (bunny, cow, airplane, bone) or shape:NAME (tube, cup,
+    slab, bunny-fine: the generated benchmark objects, each with its texture frequency)."""
     n_train: int = 50
     """Training views."""
     n_val: int = 5
@@ -167,16 +177,22 @@ def _check(config: GenerateConfig) -> None:
 
 def generate_dataset(config: GenerateConfig) -> Path:
     """Normalise (and colour) the mesh, render train/val/test views on a sphere or hemisphere, and write the
-    Blender dataset atomically: ``transforms_{split}.json`` (+ ``w``, ``h``, ``aabb`` = object box ± 0.1 and
-    ``supersample``), ``{split}/r_{i}.png`` (RGBA), ``mesh.ply`` (the exact geometry and colours rendered) and
-    ``config.yml``. Returns the dataset folder."""
+    Blender dataset atomically: ``transforms_{split}.json`` (+ ``w``, ``h``, ``aabb`` = object box ± 0.1,
+    ``supersample`` and ``source_transform``: the (4,4) similarity taking the given mesh's coordinates to the
+    dataset's, up-axis rotation then normalisation, up to the float32 rounding of the written mesh),
+    ``{split}/r_{i}.png`` (RGBA), ``mesh.ply`` (the exact geometry and colours rendered) and ``config.yml``. Returns
+    the dataset folder."""
     _check(config)
-    mesh = SurfaceMesh.load(config.mesh)
+    mesh, frequency = load_scene_mesh(config.mesh)
+    source_to_world = np.eye(4)
     if config.up_axis == "y":  # (x, y, z) -> (x, -z, y): a rotation taking +y to +z
-        mesh = mesh.with_vertices(np.stack([mesh.vertices[:, 0], -mesh.vertices[:, 2], mesh.vertices[:, 1]], 1))
+        source_to_world[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+        mesh = mesh.with_vertices(mesh.vertices @ source_to_world[:3, :3].T)
+    centre, extent = normalization(mesh.vertices)
+    source_to_world[:3] = np.concatenate([source_to_world[:3, :3], -centre[:, None]], axis=1) / extent
     mesh = normalize(mesh)
     if not (config.keep_colors and mesh.vertex_colors is not None):
-        mesh = colorize(mesh, config.seed)
+        mesh = colorize(mesh, config.seed, frequency)
     ball = float(np.linalg.norm(mesh.vertices, axis=1).max())
     if config.fov_degrees is None:
         if config.radius <= FOV_MARGIN * ball:
@@ -192,7 +208,12 @@ def generate_dataset(config: GenerateConfig) -> Path:
             cameras = Cameras.from_fov(poses, config.resolution, config.resolution, fov)
             names = [f"./{split}/r_{i}" for i in range(counts[split])]
             _write_views(mesh, cameras, [stage / f"{name}.png" for name in names], config.supersample)
-            transforms = {**blender_transforms(cameras, names), "aabb": aabb, "supersample": config.supersample}
+            transforms = {
+                **blender_transforms(cameras, names),
+                "aabb": aabb,
+                "supersample": config.supersample,
+                "source_transform": source_to_world.tolist(),
+            }
             (stage / f"transforms_{split}.json").write_text(json.dumps(transforms, indent=2))
         mesh.save(stage / "mesh.ply")
         write_config(stage / "config.yml", config)
