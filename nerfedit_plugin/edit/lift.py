@@ -60,7 +60,7 @@ class LiftConfig:
     """Upper bound on the Newton iterations of an inversion-free re-lift."""
     injective_tolerance: float = 1e-2
     """Stop an inversion-free re-lift when an iteration lowers its energy by less than this fraction."""
-    residual_target: float = 5e-4
+    residual_target: float = 2e-3
     """tet-arap: where the lifted proxy misses a surface vertex by more than this × the rest bbox diagonal (the
     piecewise-affine fit is too coarse there), the tets holding such vertices are bisected (once per factor 4 of
     excess) and every frame is lifted again, warm-started from the previous lift; repeated while some vertex misses
