@@ -98,6 +98,7 @@ def edit(args: EditArgs) -> None:
     timings = ", ".join(f"{k} {v:.2f}s" for k, v in report["timings_s"].items())
     console.print(
         f"proxy {proxy['vertices']} vertices / {proxy['tets']} tets"
+        f"{' (refined from ' + str(proxy['built_tets']) + ')' if proxy['refinements'] else ''}"
         f"{' (cached)' if proxy['cached'] and not proxy['reused_from'] else ''}"
         f"{' (from ' + proxy['reused_from'] + ')' if proxy['reused_from'] else ''}; {timings}"
     )
