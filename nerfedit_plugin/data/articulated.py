@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from nerfedit_plugin.data.shapes import level_set_mesh
 from nerfedit_plugin.data.synthetic import colorize, normalize
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, longest_side_frame
 from nerfedit_plugin.io.atomic import atomic_dir
 
 CAPSULES = {
@@ -134,16 +135,8 @@ class Subject:
 def build_subject(cell: float = 0.007, seed: int = 0) -> Subject:
     """The subject meshed on a lattice of spacing ``cell`` (design units; 0.007: ~25k vertices, 0.015: ~5k),
     coloured with ``colorize(mesh, seed)``, and its skeleton mapped into the same frame."""
-    from skimage.measure import marching_cubes
-
-    low = np.array([-0.35, -0.15, -0.6]) - 2 * cell  # the subject's box, padded by two cells: the surface closes
-    high = np.array([0.35, 0.15, 0.5]) + 2 * cell
-    axes = [np.arange(lo, hi + cell, cell) for lo, hi in zip(low, high)]
-    values = subject_sdf(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1))
-    vertices, faces, _, _ = marching_cubes(-values, 0.0, spacing=(cell,) * 3)
-    raw = SurfaceMesh(vertices + low, faces[:, ::-1].astype(np.int64))  # counter-clockwise seen from outside
-    lo, hi = raw.vertices.min(0), raw.vertices.max(0)
-    centre, extent = (lo + hi) / 2, float((hi - lo).max())  # the map normalize() applies to the mesh
+    raw = level_set_mesh(subject_sdf, [-0.35, -0.15, -0.6], [0.35, 0.15, 0.5], cell)  # the subject's box
+    centre, extent = longest_side_frame(raw.vertices)  # the map normalize() applies to the mesh
 
     def place(point) -> list[float]:
         return ((np.asarray(point) - centre) / extent).tolist()

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, longest_side_frame
 
 PREFIX = "shape:"
 CELL = 1.0 / 128
@@ -47,20 +47,26 @@ class Shape:
 
 def _unit_frame(mesh: SurfaceMesh) -> SurfaceMesh:
     """``mesh`` with its bounding box centred at the origin and its longest side scaled to 1."""
-    low, high = mesh.vertices.min(0), mesh.vertices.max(0)
-    return mesh.with_vertices((mesh.vertices - (low + high) / 2) / float((high - low).max()))
+    centre, extent = longest_side_frame(mesh.vertices)
+    return mesh.with_vertices((mesh.vertices - centre) / extent)
+
+
+def level_set_mesh(sdf: Callable[[np.ndarray], np.ndarray], low, high, cell: float) -> SurfaceMesh:
+    """The zero level set of ``sdf`` (points (..., 3) → signed distances, negative inside) sampled every ``cell``
+    inside the box ``[low, high]`` (padded by two cells, so the surface is closed): scikit-image marching cubes,
+    faces counter-clockwise seen from outside."""
+    from skimage.measure import marching_cubes
+
+    low, high = np.asarray(low, dtype=np.float64) - 2 * cell, np.asarray(high, dtype=np.float64) + 2 * cell
+    axes = [np.arange(lo, hi + cell, cell) for lo, hi in zip(low, high)]
+    values = sdf(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1))
+    vertices, faces, _, _ = marching_cubes(-values, 0.0, spacing=(cell,) * 3)
+    return SurfaceMesh(vertices + low, faces[:, ::-1].astype(np.int64))
 
 
 def _marching_cubes(sdf: Callable[[np.ndarray], np.ndarray], low, high) -> SurfaceMesh:
-    """The zero level set of ``sdf`` (points (..., 3) → signed distances, negative inside) inside the box
-    ``[low, high]`` (padded by two cells, so the surface is closed), faces counter-clockwise seen from outside."""
-    from skimage.measure import marching_cubes
-
-    low, high = np.asarray(low, dtype=np.float64) - 2 * CELL, np.asarray(high, dtype=np.float64) + 2 * CELL
-    axes = [np.arange(lo, hi + CELL, CELL) for lo, hi in zip(low, high)]
-    values = sdf(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1))
-    vertices, faces, _, _ = marching_cubes(-values, 0.0, spacing=(CELL,) * 3)
-    return _unit_frame(SurfaceMesh(vertices + low, faces[:, ::-1].astype(np.int64)))
+    """:func:`level_set_mesh` at :data:`CELL`, in the generator's frame."""
+    return _unit_frame(level_set_mesh(sdf, low, high, CELL))
 
 
 def _segment_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ from nerfedit_plugin.data.datasets import SPLITS, blender_transforms, block_mean
 from nerfedit_plugin.data.shapes import load_scene_mesh
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, longest_side_frame
 from nerfedit_plugin.io.atomic import atomic_dir
 
 RAYS_PER_CHUNK = 1 << 21
@@ -34,21 +34,11 @@ FOV_MARGIN = 1.1
 """Automatic field of view: the normalised object's bounding ball, enlarged by this factor, fills the image."""
 
 
-def normalization(vertices: np.ndarray) -> tuple[np.ndarray, float]:
-    """vertices (V,3) float → ``(c (3,) float64, e)``: :func:`normalize` maps ``x ↦ (x − c)/e``, ``c`` the bounding
-    box's centre and ``e`` its longest side."""
-    low, high = vertices.min(0), vertices.max(0)
-    extent = float((high - low).max())
-    if not extent > 0:
-        raise NerfEditError("mesh: all vertices coincide (nothing to render)")
-    return (low + high) / 2, extent
-
-
 def normalize(mesh: SurfaceMesh) -> SurfaceMesh:
-    """Centre the bounding box at the origin and scale its longest side to 1 (:func:`normalization`). Coordinates are
-    rounded to float32 (what PLY files store and the ray caster uses), so the mesh written to disk is exactly the one
-    rendered."""
-    centre, extent = normalization(mesh.vertices)
+    """Centre the bounding box at the origin and scale its longest side to 1 (:func:`longest_side_frame`).
+    Coordinates are rounded to float32 (what PLY files store and the ray caster uses), so the mesh written to disk is
+    exactly the one rendered."""
+    centre, extent = longest_side_frame(mesh.vertices)
     return mesh.with_vertices(((mesh.vertices - centre) / extent).astype(np.float32).astype(np.float64))
 
 
@@ -188,7 +178,7 @@ def generate_dataset(config: GenerateConfig) -> Path:
     if config.up_axis == "y":  # (x, y, z) -> (x, -z, y): a rotation taking +y to +z
         source_to_world[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
         mesh = mesh.with_vertices(mesh.vertices @ source_to_world[:3, :3].T)
-    centre, extent = normalization(mesh.vertices)
+    centre, extent = longest_side_frame(mesh.vertices)
     source_to_world[:3] = np.concatenate([source_to_world[:3, :3], -centre[:, None]], axis=1) / extent
     mesh = normalize(mesh)
     if not (config.keep_colors and mesh.vertex_colors is not None):

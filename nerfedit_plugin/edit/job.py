@@ -3,7 +3,8 @@
 Output folder (written atomically: staged beside the target, renamed on success):
 ``config.yml``, a copy of the spec, ``deformed_mesh.ply`` (or ``deformed_mesh_0000.ply`` … for sequences),
 ``deformation.npz`` (the lifted proxy: refined where the lift needed it), ``proxy.npz`` (the proxy as built, for
-``--proxy-from``), ``report.json`` and whatever the deformer's optional ``write_artifacts(out_dir)`` writes.
+``--proxy-from``, when the lift refined it), ``report.json`` and whatever the deformer's optional
+``write_artifacts(out_dir)`` writes.
 """
 
 from __future__ import annotations
@@ -128,7 +129,8 @@ def run_edit(
             for name, positions in zip(names, frames):
                 rest.with_vertices(positions).save(stage / name)
             DeformationField(lifter.proxy.vertices, lifter.proxy.tets, lifted).save(stage / "deformation.npz")
-            proxy.save(stage / "proxy.npz")
+            if lifter.refinements:  # else deformation.npz holds the proxy as built
+                proxy.save(stage / "proxy.npz")
             shutil.copyfile(edit, stage / Path(edit).name)
             model.write_artifacts(stage)
             write_config(stage / "config.yml", record if record is not None else {"deformer": deformer, "lift": lift})

@@ -185,7 +185,8 @@ class Lift:
             targets = surface[self.surface]
             initial = previous
             if initial is None:
-                initial = proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices)
+                rest = self.rest.vertices[self.surface]
+                initial = proxy.vertices + knn3_displacements(rest, targets, proxy.vertices)
             result = self.solver.solve(constraint_targets=targets, initial=initial, **kwargs)
         if not self.config.injective or self.folds(result.vertices) == 0:
             return result.vertices, result.iterations
@@ -217,8 +218,7 @@ class Lift:
         """deformed proxy (N,3) float64, surface (V,3) float64 → the frame's :class:`FrameReport` (residual
         ``|A t' − v'|`` per surface vertex, relative to the rest bbox diagonal; inverted / degenerate tets by signed
         volume; surface faces turned by more than 90°)."""
-        scale = self.rest.bbox_diagonal
-        residual = np.linalg.norm(self.embedding @ deformed - surface[self.surface], axis=1) / scale
+        residual = self.misfit(deformed, surface)
         volumes = tet_signed_volumes(deformed, self.proxy.tets)
         tiny = 1e-9 * np.abs(self.rest_volumes).mean()
         flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
@@ -232,13 +232,15 @@ class Lift:
             seconds=seconds,
         )
 
+    def misfit(self, deformed: np.ndarray, surface: np.ndarray) -> np.ndarray:
+        """deformed proxy (N,3), surface frame (V,3) float64 → (S,) float64: ``|A t' − v'|`` at each surface vertex
+        (``self.surface``), relative to the rest bbox diagonal."""
+        return np.linalg.norm(self.embedding @ deformed - surface[self.surface], axis=1) / self.rest.bbox_diagonal
+
     def residuals(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
-        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (S,) float64: the worst residual over the
-        frames of each surface vertex (``self.surface``), relative to the rest bbox diagonal."""
-        residual = np.max(
-            [np.linalg.norm(self.embedding @ x - v[self.surface], axis=1) for x, v in zip(lifted, frames)], axis=0
-        )
-        return residual / self.rest.bbox_diagonal
+        """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (S,) float64: each surface vertex's worst
+        :meth:`misfit` over the frames."""
+        return np.max([self.misfit(x, v) for x, v in zip(lifted, frames)], axis=0)
 
     def bisections_needed(self, residual: np.ndarray) -> np.ndarray:
         """residual (S,) → (S,) int64: per surface vertex, the bisections of its tet expected to bring it within

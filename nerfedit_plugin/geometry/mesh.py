@@ -22,6 +22,17 @@ def unit_frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     return (low + high) / 2, float(np.linalg.norm(high - low)) or 1.0
 
 
+def longest_side_frame(vertices: np.ndarray) -> tuple[np.ndarray, float]:
+    """vertices (N,3) → ``(centre (3,) float64, extent float)``: the bounding-box centre and longest side, so
+    ``(x − centre) / extent`` fits the centred unit cube (the data generator's frame). Coinciding vertices are a
+    :class:`NerfEditError`."""
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    extent = float((high - low).max())
+    if not extent > 0:
+        raise NerfEditError("mesh: all vertices coincide (nothing to render)")
+    return (low + high) / 2, extent
+
+
 @dataclass
 class SurfaceMesh:
     """A triangle mesh: ``vertices (V,3) float64``, ``faces (F,3) int64``, optional ``vertex_colors (V,3)`` float64
