@@ -46,7 +46,7 @@ class CanonicalPoints(NamedTuple):
     jacobian: torch.Tensor  # (M,3,3) dx_c/dx, constant per tet; identity where not inside
 
 
-def _validate(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def validate_arrays(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Arrays as (N,3) f64, (K,4) i64, (F,N,3) f64, or :class:`NerfEditError` naming ``where`` and the key."""
     rest, tets, deformed = (
         x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x) for x in (rest, tets, deformed)
@@ -128,7 +128,7 @@ class DeformationField:
     def __init__(
         self, rest_vertices, tets, deformed_vertices, *, device="cpu", dtype=torch.float32, kernel: str = "auto"
     ):
-        self.rest_vertices, self.tets, self.deformed_vertices = _validate(
+        self.rest_vertices, self.tets, self.deformed_vertices = validate_arrays(
             rest_vertices, tets, deformed_vertices, "DeformationField"
         )
         self.device, self.dtype = torch.device(device), dtype
@@ -336,7 +336,7 @@ class DeformationField:
             raise
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
             raise NerfEditError(f"{path}: not a readable deformation .npz ({error})") from None
-        return cls(*_validate(*arrays, str(path)), device=device, dtype=dtype)
+        return cls(*validate_arrays(*arrays, str(path)), device=device, dtype=dtype)
 
     @classmethod
     def identity(cls, vertices, tets, n_frames: int = 1, **kwargs) -> DeformationField:

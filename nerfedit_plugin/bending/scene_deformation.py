@@ -1,0 +1,328 @@
+"""SceneDeformation: several objects' deformations resolved together, and edits of edited scenes chained.
+
+A *stage* (one edit) holds objects and instances. An object is a rest proxy ``T_o`` (the tets that hold its own
+geometry); an instance is one placed, deformed copy ``T'_i`` of an object's proxy, per frame (an object's original,
+moved or not, and its copies; a removed object has no instance of its own). A deformed-space point ``x``:
+
+- inside some instance's ``T'_i``: mapped by the *first* such instance in instance order (objects in spec order, each
+  object's original before its copies), ``x_c = Σ b_j r_j`` of that instance's tet (:class:`DeformationField`);
+- else inside some object's rest ``T_o``: empty (vacated);
+- else: ``x`` itself (identity; Jacobian ``I``).
+
+A chain of stages (the second edit's rest is the first one's deformed mesh) maps ``x`` through the newest stage, then
+each older stage at the frame the next edit started from; a point is empty if any stage empties it, and the Jacobian
+is the product ``J_0 ⋯ J_newest``. One object with one instance in one stage is exactly a :class:`DeformationField`.
+
+Saved as ``deformation.npz`` format 2: ``format_version = 2``, ``layout`` (JSON: per stage its ``frame``, objects'
+and instances' names, each instance's ``object``) and the arrays ``s{s}_o{o}_rest_vertices``, ``s{s}_o{o}_tets``,
+``s{s}_i{i}_deformed_vertices``. :func:`load_deformation` reads format 1 (one :class:`DeformationField`) and 2.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from nerfedit_plugin.bending.deformation_field import BentPoints, CanonicalPoints, DeformationField, validate_arrays
+from nerfedit_plugin.bending.locate import TetLocator
+from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.io.atomic import atomic_path
+
+FORMAT_VERSION = 2
+
+
+class SceneObject(NamedTuple):
+    name: str
+    rest_vertices: np.ndarray  # (N,3) float64
+    tets: np.ndarray  # (K,4) int64
+
+
+class Instance(NamedTuple):
+    name: str
+    object: int  # index into the stage's objects
+    deformed_vertices: np.ndarray  # (F,N,3) float64, N = its object's rest vertex count
+
+
+@dataclass
+class Stage:
+    """One edit of a scene: its objects and their instances (see the module docstring). ``frame``: the frame of this
+    stage a newer stage of a chain starts from (ignored for the newest)."""
+
+    objects: list[SceneObject]
+    instances: list[Instance]
+    frame: int = 0
+    _fields: list[DeformationField] = field(default_factory=list, repr=False)
+    _vacated: list[TetLocator] = field(default_factory=list, repr=False)
+
+    @property
+    def n_frames(self) -> int:
+        return max((len(i.deformed_vertices) for i in self.instances), default=1)
+
+    @property
+    def n_tets(self) -> int:
+        """Tets over all instances: a stage's tet index is its instance's offset plus the tet in that instance."""
+        return sum(len(self.objects[i.object].tets) for i in self.instances)
+
+
+class SceneDeformation:
+    """Stages of objects and instances mapping deformed-space points to canonical space (module docstring); the
+    interface the renderer uses is :class:`DeformationField`'s: :meth:`bend`, :meth:`jacobian`,
+    :meth:`moved_bounds`, :meth:`to_canonical`, ``n_frames``."""
+
+    def __init__(self, stages: list[Stage], *, device="cpu", dtype=torch.float32, kernel: str = "auto"):
+        if not stages:
+            raise NerfEditError("SceneDeformation: needs at least one stage")
+        self.stages = [_checked(stage, f"stage {s}") for s, stage in enumerate(stages)]
+        self.device, self.dtype, self.kernel = torch.device(device), dtype, kernel
+        codes = 1
+        for stage in self.stages:
+            codes *= stage.n_tets + 1
+        if codes >= 2**62:
+            raise NerfEditError("SceneDeformation: too many chained stages to index their tets together")
+        for stage in self.stages:
+            stage._fields = [
+                DeformationField(
+                    stage.objects[i.object].rest_vertices,
+                    stage.objects[i.object].tets,
+                    _frames(i.deformed_vertices, stage.n_frames),
+                    device=device,
+                    dtype=dtype,
+                    kernel=kernel,
+                )
+                for i in stage.instances
+            ]
+            placed = {i.object for i in stage.instances}
+            stage._vacated = [
+                TetLocator(o.rest_vertices, o.tets, dtype=dtype, device=device, kernel=kernel)
+                for k, o in enumerate(stage.objects)
+                if k not in placed
+            ]
+
+    @classmethod
+    def from_field(cls, deformation: DeformationField, name: str = "object", **kwargs) -> SceneDeformation:
+        """One stage with one object and one instance: the same map as ``deformation``."""
+        return cls([_single(deformation, name)], **kwargs)
+
+    @property
+    def n_frames(self) -> int:
+        return self.stages[-1].n_frames
+
+    def _frames(self, frame: int) -> list[tuple[Stage, int]]:
+        """The stages newest first, each with the frame it is evaluated at."""
+        if not 0 <= frame < self.n_frames:
+            raise NerfEditError(f"frame {frame} out of range: the deformation has {self.n_frames} frame(s)")
+        return [(self.stages[-1], int(frame))] + [(s, s.frame) for s in reversed(self.stages[:-1])]
+
+    def bend(
+        self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True
+    ) -> BentPoints:
+        """:meth:`DeformationField.bend` for the scene: ``points (M,3)``, ``tet (M,)`` (a chain index of the tets that
+        mapped the point, -1 where no stage did; None with ``tets=False``), ``empty (M,)``."""
+        x = torch.as_tensor(x)
+        if out is not None and out.shape != (len(x), 3):
+            raise ValueError(f"bend: out must have shape ({len(x)}, 3), got {tuple(out.shape)}")
+        points = x.to(device=self.device, dtype=self.dtype).reshape(-1, 3)
+        code = torch.zeros(len(points), dtype=torch.int64, device=self.device)
+        empty = torch.zeros(len(points), dtype=torch.bool, device=self.device)
+        radix = 1
+        for stage, f in self._frames(frame):
+            points, tet, vacated = _bend_stage(stage, points, f)
+            code += (tet + 1) * radix
+            empty |= vacated
+            radix *= stage.n_tets + 1
+        if out is not None:
+            points = out.copy_(points)
+        return BentPoints(points, code - 1 if tets else None, empty)
+
+    def jacobian(self, tet: torch.Tensor, frame: int = 0) -> torch.Tensor:
+        """tet (M,) (as :meth:`bend` returns) → ``(M,3,3)`` dx_c/dx: the product of the stages' Jacobians, oldest
+        on the left (identity where ``tet`` is -1)."""
+        code = torch.as_tensor(tet, device=self.device) + 1
+        result = None
+        for stage, f in self._frames(frame):
+            local = code % (stage.n_tets + 1) - 1
+            code = torch.div(code, stage.n_tets + 1, rounding_mode="floor")
+            j = _stage_jacobian(stage, local, f, self.dtype)
+            result = j if result is None else j @ result
+        return result
+
+    def to_canonical(self, x: torch.Tensor, frame: int = 0) -> CanonicalPoints:
+        """:meth:`DeformationField.to_canonical` for the scene."""
+        bent = self.bend(x, frame)
+        return CanonicalPoints(bent.points, bent.tet >= 0, bent.empty, self.jacobian(bent.tet, frame))
+
+    def moved_bounds(self, frame: int = 0) -> np.ndarray | None:
+        """``(2,3)`` box of every instance's moved tets (:meth:`DeformationField.moved_bounds`) over all stages at
+        their frames; None if nothing moves."""
+        boxes = [
+            b for stage, f in self._frames(frame) for field in stage._fields if (b := field.moved_bounds(f)) is not None
+        ]
+        return None if not boxes else np.stack([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
+
+    def proxies(self, frame: int = 0) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+        """The newest stage's instances as ``(name, rest_vertices, tets, deformed_vertices of frame)`` (viewers)."""
+        stage, f = self._frames(frame)[0]
+        return [
+            (i.name, stage.objects[i.object].rest_vertices, stage.objects[i.object].tets, d.deformed_vertices[f])
+            for i, d in zip(stage.instances, stage._fields)
+        ]
+
+    def chained(self, newer: SceneDeformation, frame: int | None = None) -> SceneDeformation:
+        """This deformation followed by ``newer`` (an edit whose rest is this one's deformed mesh of ``frame``,
+        default the last): ``x`` maps through ``newer``'s stages, then through this one's at ``frame``."""
+        frame = self.n_frames - 1 if frame is None else frame
+        if not 0 <= frame < self.n_frames:
+            raise NerfEditError(f"frame {frame} out of range: the deformation has {self.n_frames} frame(s)")
+        last = self.stages[-1]
+        older = [*self.stages[:-1], Stage(last.objects, last.instances, frame)]
+        return SceneDeformation(older + newer.stages, device=self.device, dtype=self.dtype, kernel=self.kernel)
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write ``deformation.npz`` (format 2) atomically."""
+        layout, arrays = {"stages": []}, {}
+        for s, stage in enumerate(self.stages):
+            layout["stages"].append(
+                {
+                    "frame": stage.frame,
+                    "objects": [o.name for o in stage.objects],
+                    "instances": [{"name": i.name, "object": i.object} for i in stage.instances],
+                }
+            )
+            for o, obj in enumerate(stage.objects):
+                arrays[f"s{s}_o{o}_rest_vertices"], arrays[f"s{s}_o{o}_tets"] = obj.rest_vertices, obj.tets
+            for i, inst in enumerate(stage.instances):
+                arrays[f"s{s}_i{i}_deformed_vertices"] = inst.deformed_vertices
+        with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+            np.savez(handle, format_version=np.int64(FORMAT_VERSION), layout=np.str_(json.dumps(layout)), **arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, **kwargs) -> SceneDeformation:
+        """Read a ``deformation.npz`` of either format as a SceneDeformation (format 1: :meth:`from_field`)."""
+        loaded = load_deformation(path, **kwargs)
+        return loaded if isinstance(loaded, SceneDeformation) else cls.from_field(loaded, **kwargs)
+
+
+def load_deformation(path: str | os.PathLike, **kwargs) -> DeformationField | SceneDeformation:
+    """Read a ``deformation.npz``: format 1 → :class:`DeformationField`, format 2 → :class:`SceneDeformation`; a
+    missing, corrupt or incomplete file raises :class:`NerfEditError` naming it and the key."""
+    if not os.path.isfile(path):
+        raise NerfEditError(f"{path}: deformation file not found")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            version = data["format_version"] if "format_version" in data.files else None
+            if version is None or version.shape != () or int(version) not in (1, FORMAT_VERSION):
+                if version is None:
+                    raise NerfEditError(f"{path}: missing key 'format_version'")
+                raise NerfEditError(f"{path}: format_version: unsupported {version} (expected 1 or {FORMAT_VERSION})")
+            if int(version) == 1:
+                return DeformationField.load(path, **kwargs)
+            stages = _read_stages(data, str(path))
+    except NerfEditError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise NerfEditError(f"{path}: not a readable deformation .npz ({error})") from None
+    return SceneDeformation(stages, **kwargs)
+
+
+def _read_stages(data, where: str) -> list[Stage]:
+    if "layout" not in data.files:
+        raise NerfEditError(f"{where}: missing key 'layout'")
+    try:
+        layout = json.loads(str(data["layout"]))
+        stages = []
+        for s, entry in enumerate(layout["stages"]):
+            objects, instances = [], []
+            for o, name in enumerate(entry["objects"]):
+                keys = (f"s{s}_o{o}_rest_vertices", f"s{s}_o{o}_tets")
+                missing = [k for k in keys if k not in data.files]
+                if missing:
+                    raise NerfEditError(f"{where}: missing key '{missing[0]}'")
+                objects.append(SceneObject(str(name), data[keys[0]], data[keys[1]]))
+            for i, inst in enumerate(entry["instances"]):
+                key = f"s{s}_i{i}_deformed_vertices"
+                if key not in data.files:
+                    raise NerfEditError(f"{where}: missing key '{key}'")
+                instances.append(Instance(str(inst["name"]), int(inst["object"]), data[key]))
+            stages.append(Stage(objects, instances, int(entry["frame"])))
+    except (KeyError, TypeError, ValueError) as error:
+        raise NerfEditError(f"{where}: layout: malformed ({error!r})") from None
+    return [_checked(stage, where) for stage in stages]
+
+
+def _checked(stage: Stage, where: str) -> Stage:
+    """The stage with validated arrays (:func:`~nerfedit_plugin.bending.deformation_field.validate_arrays`), or
+    :class:`NerfEditError` naming ``where`` and the object or instance."""
+    objects = []
+    for obj in stage.objects:
+        rest, tets, _ = validate_arrays(obj.rest_vertices, obj.tets, obj.rest_vertices, f"{where}: object {obj.name!r}")
+        objects.append(SceneObject(obj.name, rest, tets))
+    instances, frames = [], set()
+    for inst in stage.instances:
+        if not 0 <= inst.object < len(objects):
+            raise NerfEditError(f"{where}: instance {inst.name!r}: object {inst.object} out of range")
+        rest, tets = objects[inst.object][1:]
+        _, _, deformed = validate_arrays(rest, tets, inst.deformed_vertices, f"{where}: instance {inst.name!r}")
+        instances.append(Instance(inst.name, inst.object, deformed))
+        frames.add(len(deformed))
+    if len(frames - {1}) > 1:
+        raise NerfEditError(f"{where}: instances have different frame counts {sorted(frames)} (1 or one count)")
+    checked = Stage(objects, instances, int(stage.frame))
+    if not 0 <= checked.frame < checked.n_frames:
+        raise NerfEditError(f"{where}: frame {checked.frame} out of range for {checked.n_frames} frame(s)")
+    return checked
+
+
+def _single(deformation: DeformationField, name: str) -> Stage:
+    return Stage(
+        [SceneObject(name, deformation.rest_vertices, deformation.tets)],
+        [Instance(name, 0, deformation.deformed_vertices)],
+    )
+
+
+def _frames(deformed: np.ndarray, n: int) -> np.ndarray:
+    """An instance's frames, a single frame held for all ``n``."""
+    return np.broadcast_to(deformed, (n, *deformed.shape[1:])) if len(deformed) == 1 else deformed
+
+
+def _bend_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Points ``x (M,3)`` through one stage → ``(points, tet (M,) stage index or -1, empty (M,))``."""
+    out = x.clone()
+    tet = torch.full((len(x),), -1, dtype=torch.int64, device=x.device)
+    empty = torch.zeros(len(x), dtype=torch.bool, device=x.device)
+    todo, offset = None, 0
+    for deformation in stage._fields:
+        pending = x if todo is None else x.index_select(0, todo)
+        bent = deformation.bend(pending, frame)
+        mapped = bent.tet >= 0
+        rows = torch.nonzero(mapped).squeeze(1)
+        where = rows if todo is None else todo.index_select(0, rows)
+        out.index_copy_(0, where, bent.points.index_select(0, rows))
+        tet.index_copy_(0, where, bent.tet.index_select(0, rows) + offset)
+        vacated = torch.nonzero(bent.empty).squeeze(1)
+        empty.index_fill_(0, vacated if todo is None else todo.index_select(0, vacated), True)
+        left = torch.nonzero(~mapped).squeeze(1)
+        todo = left if todo is None else todo.index_select(0, left)
+        offset += len(deformation.tets)
+    for locator in stage._vacated:
+        pending = x if todo is None else x.index_select(0, todo)
+        inside = torch.nonzero(locator.member(pending) >= 0).squeeze(1)
+        empty.index_fill_(0, inside if todo is None else todo.index_select(0, inside), True)
+    return out, tet, empty & (tet < 0)
+
+
+def _stage_jacobian(stage: Stage, tet: torch.Tensor, frame: int, dtype: torch.dtype) -> torch.Tensor:
+    """``(M,3,3)`` Jacobians of stage tets ``tet`` (-1: identity)."""
+    result = torch.eye(3, dtype=dtype, device=tet.device).repeat(len(tet), 1, 1)
+    offset = 0
+    for deformation in stage._fields:
+        rows = torch.nonzero((tet >= offset) & (tet < offset + len(deformation.tets))).squeeze(1)
+        if len(rows):
+            result.index_copy_(0, rows, deformation.jacobian(tet.index_select(0, rows) - offset, frame))
+        offset += len(deformation.tets)
+    return result
