@@ -46,7 +46,8 @@ class ArapDeformer(Deformer):
 
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
         self.rest = rest
-        self.handles, self.targets = edit.handle_targets(rest.vertices)  # validates the spec before any factorising
+        # validates the spec before any factorising
+        self.handles, self.targets = edit.handle_targets(rest.vertices, rest.faces)
         try:
             self.solver = ArapSolver(rest.vertices, rest.faces, energy=self.config.energy, fixed=self.handles)
         except NerfEditError as exc:

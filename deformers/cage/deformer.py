@@ -166,7 +166,7 @@ class CageDeformer(Deformer):
             t = edit.times[:, None, None]
             poses = (1.0 - t) * cage.vertices + t * target.vertices
         else:
-            idx, targets = edit.handle_targets(cage.vertices)
+            idx, targets = edit.handle_targets(cage.vertices, cage.faces)
             poses = np.repeat(cage.vertices[None], edit.frames, axis=0)
             poses[:, idx] = targets
 

@@ -42,13 +42,18 @@ class EditArgs:
     mesh, --proxy options and camera distance. pytetwild is not deterministic: this reproduces an edit bit for bit."""
     camera_distance: float | None = None
     """Mean camera-to-object distance; sets the cage offset (5% of it). Default: from the run's cameras."""
+    base: Path | None = None
+    """Edit the result of an earlier edit (its folder): its deformed mesh is the rest, and OUT/deformation.npz chains
+    both deformations (render it on the same run)."""
+    base_frame: int | None = None
+    """With --base: the frame of a sequence whose deformed mesh is the rest (default: its last)."""
     overwrite: bool = False
     """Replace an existing output folder (only after the new one is complete)."""
 
 
 def edit(args: EditArgs) -> None:
     from nerfedit_plugin.cli.render import render_run
-    from nerfedit_plugin.edit.job import run_edit
+    from nerfedit_plugin.edit.job import Base, run_edit
     from nerfedit_plugin.io.run import open_run
 
     run = open_run(args.run) if args.run is not None else None
@@ -56,9 +61,14 @@ def edit(args: EditArgs) -> None:
         raise NerfEditError(f"--field {args.field}: the run {run.path} holds a {run.backend!r} field")
     if run is None and (args.field is not None or args.render_cameras is not None):
         raise NerfEditError("--field and --render-cameras need --run RUN_DIR (the trained field to render)")
-    if args.mesh is None and run is None:
+    if args.base is None and args.base_frame is not None:
+        raise NerfEditError("--base-frame: needs --base EDIT_DIR")
+    base = Base.of(args.base, args.base_frame) if args.base is not None else None
+    if base is not None and args.mesh is not None:
+        raise NerfEditError("--mesh and --base: the rest of an edit of an edit is the base's deformed mesh")
+    if args.mesh is None and run is None and base is None:
         raise NerfEditError("give the mesh to edit: --mesh MESH.ply or --run RUN_DIR (its extracted mesh)")
-    mesh = args.mesh if args.mesh is not None else run.mesh()
+    mesh = base.mesh() if base is not None else args.mesh if args.mesh is not None else run.mesh()
     distance = args.camera_distance if args.camera_distance is not None or run is None else run.camera_distance()
     with console.status("editing") as status:
         result = run_edit(
@@ -73,26 +83,38 @@ def edit(args: EditArgs) -> None:
             source_to_world=None if run is None else run.source_transform(),
             cache_dir=args.cache_dir,
             proxy_from=args.proxy_from,
+            base=base,
             overwrite=args.overwrite,
             record=recorded(args),
             on_stage=lambda stage: status.update(f"[bold]{stage}[/]"),
         )
     report = result.report
+    if report.get("scene"):
+        _print_scene(result.out, report)
+    else:
+        _print_single(result.out, report)
+    if args.render_cameras is not None:
+        out = render_run(run, args.render_cameras, result.out / "deformation.npz", None, result.out / "renders", False)
+        console.print(f"renders → {out}")
+
+
+COLUMNS = ("residual max (×bbox)", "residual rms", "inverted tets", "folded faces", "iterations", "seconds")
+
+
+def _frame_row(f: dict) -> tuple:
+    return (
+        f"{f['residual_max']:.2e}",
+        f"{f['residual_rms']:.2e}",
+        f["inverted_tets"],
+        f["flipped_surface_faces"],
+        f["iterations"],
+        f"{f['seconds']:.2f}",
+    )
+
+
+def _print_single(out: Path, report: dict) -> None:
     print_table(
-        f"nerfedit edit → {result.out}",
-        ("frame", "residual max (×bbox)", "residual rms", "inverted tets", "folded faces", "iterations", "seconds"),
-        [
-            (
-                i,
-                f"{f['residual_max']:.2e}",
-                f"{f['residual_rms']:.2e}",
-                f["inverted_tets"],
-                f["flipped_surface_faces"],
-                f["iterations"],
-                f"{f['seconds']:.2f}",
-            )
-            for i, f in enumerate(report["per_frame"])
-        ],
+        f"nerfedit edit → {out}", ("frame", *COLUMNS), [(i, *_frame_row(f)) for i, f in enumerate(report["per_frame"])]
     )
     proxy = report["proxy"]
     timings = ", ".join(f"{k} {v:.2f}s" for k, v in report["timings_s"].items())
@@ -102,9 +124,21 @@ def edit(args: EditArgs) -> None:
         f"{' (cached)' if proxy['cached'] and not proxy['reused_from'] else ''}"
         f"{' (from ' + proxy['reused_from'] + ')' if proxy['reused_from'] else ''}; {timings}"
     )
-    if args.render_cameras is not None:
-        out = render_run(run, args.render_cameras, result.out / "deformation.npz", None, result.out / "renders", False)
-        console.print(f"renders → {out}")
+
+
+def _print_scene(out: Path, report: dict) -> None:
+    """One row per instance and frame of a scene edit (instances without an edit: a placement, no lift)."""
+    rows = []
+    for obj in report["objects"]:
+        for inst in obj["instances"]:
+            frames = inst.get("per_frame") or [None]
+            for i, f in enumerate(frames):
+                rows.append((obj["name"], inst["name"], i, *(_frame_row(f) if f else ("placed",) + ("",) * 5)))
+        if obj["removed"]:
+            rows.append((obj["name"], "(removed)", "", *("",) * 6))
+    print_table(f"nerfedit edit (scene) → {out}", ("object", "instance", "frame", *COLUMNS), rows)
+    timings = ", ".join(f"{k} {v:.2f}s" for k, v in report["timings_s"].items())
+    console.print(f"{len(report['objects'])} object(s), {len(report['overlaps'])} overlap(s); {timings}")
 
 
 COMMAND = Command("edit", EditArgs, edit, plugin=("deformer", DEFORMERS, "arap"), records=True)

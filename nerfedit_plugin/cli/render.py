@@ -80,7 +80,7 @@ def render_run(
     default all: one frame into ``out``, several into ``out/frame_NNNN``) into PNGs named like the file's frames,
     atomically; several frames are kept as a partial output when interrupted, and ``resume`` continues one;
     ``record`` goes to ``out/config.yml``."""
-    from nerfedit_plugin.bending.deformation_field import DeformationField
+    from nerfedit_plugin.bending.scene_deformation import load_deformation
     from nerfedit_plugin.config import write_config
     from nerfedit_plugin.data.datasets import read_transforms
     from nerfedit_plugin.io.atomic import atomic_dir, clear_partial, mark_partial
@@ -90,7 +90,7 @@ def render_run(
     field = run.field()
     transforms = read_transforms(cameras, "test" if Path(cameras).is_dir() else None)
     names = [p.with_suffix(".png").name for p in transforms.image_paths]
-    bent = DeformationField.load(deformation) if deformation is not None else None
+    bent = load_deformation(deformation) if deformation is not None else None
     config = default_render_config(field)
     frames = list(range(bent.n_frames if bent is not None else 1)) if frames is None else list(frames)
     with atomic_dir(out, overwrite, keep_partial=len(frames) > 1, resume=resume) as stage:
@@ -112,14 +112,14 @@ def render_run(
 def render(args: RenderArgs) -> None:
     import torch
 
-    from nerfedit_plugin.bending.deformation_field import DeformationField
+    from nerfedit_plugin.bending.scene_deformation import load_deformation
     from nerfedit_plugin.cli.view import run_up
     from nerfedit_plugin.io.run import open_run
     from nerfedit_plugin.render.animation import parse_frames, render_animation, trajectory
     from nerfedit_plugin.render.executors import RenderJob, make_executor
 
     run = open_run(args.run)
-    n_frames = DeformationField.load(args.deformation).n_frames if args.deformation is not None else 1
+    n_frames = load_deformation(args.deformation).n_frames if args.deformation is not None else 1
     frames = parse_frames(args.frame, n_frames)
     if args.trajectory == "views":
         if args.cameras is None:

@@ -205,3 +205,31 @@ def sphere_poses(
     directions = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=-1)
     center = np.asarray(center, dtype=np.float64)
     return look_at(torch.from_numpy(center + radius * directions), torch.from_numpy(center))
+
+
+def orbit_poses(
+    n: int,
+    radius: float,
+    center=(0.0, 0.0, 0.0),
+    elevation: tuple[float, float] = (15.0, 65.0),
+    azimuth: tuple[float, float] = (-180.0, 180.0),
+    seed: int = 0,
+) -> torch.Tensor:
+    """``n`` camera-to-world poses ``(n,4,4)`` spread over the band of a sphere of ``radius`` around ``center``
+    between two ``elevation`` angles and two ``azimuth`` angles (degrees; azimuth from +x towards +y, elevation
+    above the xy plane), all looking at ``center`` with +z as world up.
+
+    Equal-area strata of elevation, ``sin e_k = sin e₀ + (k + ½)/n (sin e₁ − sin e₀)``, with azimuths along a
+    golden-ratio sequence, ``a_k = a₀ + (a₁ − a₀)·frac(u + k(√5 − 1)/2)``, ``u`` drawn from ``seed`` (different
+    seeds give different views). The full azimuth range is a band of the Fibonacci spiral of :func:`sphere_poses`.
+    """
+    if n < 1:
+        raise ValueError(f"orbit_poses: n must be >= 1, got {n}")
+    low, high = np.sin(np.radians(elevation))
+    z = low + (np.arange(n) + 0.5) / n * (high - low)
+    fraction = np.mod(np.random.default_rng(seed).uniform() + np.arange(n) * (math.sqrt(5.0) - 1.0) / 2.0, 1.0)
+    phi = np.radians(azimuth[0] + (azimuth[1] - azimuth[0]) * fraction)
+    ring = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    directions = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=-1)
+    center = np.asarray(center, dtype=np.float64)
+    return look_at(torch.from_numpy(center + radius * directions), torch.from_numpy(center))

@@ -5,6 +5,7 @@ Rendering is UNLIT: a ray's colour is the barycentric interpolation of the verte
 first, so a field that stores the surface colour (the ``mesh`` field) reproduces the images exactly. Anti-aliasing
 is box-filter supersampling: ``s``×``s`` stratified rays per pixel, averaged (``Cameras.upscale`` then
 ``block_mean``), which gives soft alpha edges like real photographs; depth is that of the pixel-centre ray.
+Scenes of several meshes (:mod:`nerfedit_plugin.data.scene`) are written with the same :func:`write_dataset`.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -32,6 +34,8 @@ RAYS_PER_CHUNK = 1 << 21
 """Rays cast per batch of cameras (bounds memory; few large torch ops run faster than many small ones)."""
 FOV_MARGIN = 1.1
 """Automatic field of view: the normalised object's bounding ball, enlarged by this factor, fills the image."""
+DEFAULT_RADIUS = 2.5
+"""Camera distance from the origin of a one-mesh dataset unless ``radius`` is given."""
 
 
 def normalize(mesh: SurfaceMesh) -> SurfaceMesh:
@@ -42,6 +46,28 @@ def normalize(mesh: SurfaceMesh) -> SurfaceMesh:
     return mesh.with_vertices(((mesh.vertices - centre) / extent).astype(np.float32).astype(np.float64))
 
 
+def to_generator_frame(mesh: SurfaceMesh, up_axis: str) -> tuple[SurfaceMesh, np.ndarray]:
+    """The mesh in the generator's frame — its ``up_axis`` (``y`` or ``z``) rotated to +z, then :func:`normalize`
+    — and the (4,4) similarity taking the given mesh's coordinates to it (up to the float32 rounding)."""
+    source_to_world = np.eye(4)
+    if up_axis == "y":  # (x, y, z) -> (x, -z, y): a rotation taking +y to +z
+        source_to_world[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+        mesh = mesh.with_vertices(mesh.vertices @ source_to_world[:3, :3].T)
+    centre, extent = longest_side_frame(mesh.vertices)
+    source_to_world[:3] = np.concatenate([source_to_world[:3, :3], -centre[:, None]], axis=1) / extent
+    return normalize(mesh), source_to_world
+
+
+def smooth_noise(points: np.ndarray, rng: np.random.Generator, cycles: tuple[float, float] = (1.0, 2.5)) -> np.ndarray:
+    """Smooth, non-periodic noise ``(n, 3)`` (one channel per colour) at ``points (n, d)``: per channel the sum of 6
+    plane waves of random directions, ``cycles`` (low, high) cycles per unit length and phases drawn from ``rng``,
+    divided by √6 (unit variance)."""
+    waves = rng.normal(size=(3, 6, points.shape[1]))
+    waves *= (2 * math.pi * rng.uniform(*cycles, size=(3, 6, 1))) / np.linalg.norm(waves, axis=-1, keepdims=True)
+    phases = rng.uniform(0.0, 2 * math.pi, size=(3, 6))
+    return np.sin(np.einsum("vd,ckd->vck", points, waves) + phases).sum(-1) / math.sqrt(6.0)
+
+
 def colorize(mesh: SurfaceMesh, seed: int = 0, frequency: float = 1.0) -> SurfaceMesh:
     """A deterministic, smooth, textured-looking vertex colouring, quantised to 8 bits (exact through PLY).
 
@@ -50,14 +76,9 @@ def colorize(mesh: SurfaceMesh, seed: int = 0, frequency: float = 1.0) -> Surfac
     that darkens alternate cells to 65 % — a pattern of ~10-pixel features at 100×100 that a field can learn;
     ``frequency`` multiplies the checker's (``sin 6π·frequency·p``: 2.5 gives ~3.5-pixel cells).
     """
-    rng = np.random.default_rng(seed)
     low, high = mesh.vertices.min(0), mesh.vertices.max(0)
     p = (mesh.vertices - low) / max(float((high - low).max()), 1e-12)
-    waves = rng.normal(size=(3, 6, 3))
-    waves *= (2 * math.pi * rng.uniform(1.0, 2.5, size=(3, 6, 1))) / np.linalg.norm(waves, axis=-1, keepdims=True)
-    phases = rng.uniform(0.0, 2 * math.pi, size=(3, 6))
-    noise = np.sin(np.einsum("vd,ckd->vck", p, waves) + phases).sum(-1) / math.sqrt(6.0)
-    base = np.clip(0.55 + 0.3 * noise, 0.0, 1.0)
+    base = np.clip(0.55 + 0.3 * smooth_noise(p, np.random.default_rng(seed)), 0.0, 1.0)
     checker = 0.5 + 0.5 * np.tanh(4.0 * np.prod(np.sin(6 * math.pi * frequency * p), axis=-1))
     colors = base * (0.65 + 0.35 * checker)[:, None]
     return SurfaceMesh(mesh.vertices, mesh.faces, np.round(colors * 255.0) / 255.0)
@@ -119,7 +140,8 @@ def _write_views(mesh: SurfaceMesh, cameras: Cameras, paths: list[Path], supersa
 
 @dataclass
 class GenerateConfig:
-    """Render a mesh into a Blender-format dataset (transforms_{train,val,test}.json + RGBA PNGs + mesh.ply)."""
+    """Render a mesh into a Blender-format dataset (transforms_{train,val,test}.json + RGBA PNGs + mesh.ply), or,
+    with --objects, a scene of several meshes on a textured floor inside a textured background (+ scene.json)."""
 
     out: Path
     """Output dataset folder (must not exist or be empty unless --overwrite)."""
@@ -135,13 +157,17 @@ class GenerateConfig:
     resolution: int = 100
     """Image width and height in pixels."""
     hemisphere: bool = False
-    """Place cameras on the upper (+z) hemisphere only, as in NeRF-synthetic, instead of the whole sphere."""
-    radius: float = 2.5
-    """Camera distance from the origin; the object is normalised to a longest side of 1 centred at the origin."""
+    """Place cameras on the upper (+z) hemisphere only, as in NeRF-synthetic, instead of the whole sphere (one mesh;
+    a scene's cameras are chosen by --cameras)."""
+    radius: float | None = None
+    """Camera distance from the origin (one mesh, default 2.5; the object is normalised to a longest side of 1
+    centred at the origin) or from the centre of a scene's foreground box (default: set by the field of view)."""
     fov_degrees: float | None = None
-    """Horizontal = vertical field of view; default: the object's bounding ball (+10 %) fills the image."""
+    """Horizontal = vertical field of view; default: the object's (the scene's foreground box's) bounding ball
+    (+10 %) fills the image at the camera distance; a scene without --radius defaults to 50°."""
     seed: int = 0
-    """Seed of the colouring and of the camera placement (splits use seed, seed+1, seed+2)."""
+    """Seed of the colouring and of the camera placement (splits use seed, seed+1, seed+2; a scene's objects are
+    coloured with seed, seed+1, …)."""
     supersample: int = 2
     """Anti-aliasing: supersample × supersample rays per pixel (soft alpha edges); 1 disables it."""
     up_axis: Literal["y", "z"] = "y"
@@ -150,19 +176,83 @@ class GenerateConfig:
     """Use the mesh's own vertex colours when it has them instead of the generated texture."""
     overwrite: bool = False
     """Replace an existing output folder (only after the new one is complete)."""
+    objects: list[str] = field(default_factory=list)
+    """A scene instead of --mesh: its meshes (files, sample:NAME, shape:NAME; repeats allowed), each standing on the
+    floor, side by side along x unless --positions are given (nerfedit_plugin.data.scene)."""
+    positions: list[tuple[float, float]] = field(default_factory=list)
+    """Scene: the (x, y) centre of each object's box on the floor (default: side by side along x, centred)."""
+    yaws: list[float] = field(default_factory=list)
+    """Scene: each object's rotation about the vertical axis in degrees (default 0)."""
+    object_size: float = 1.0
+    """Scene: the longest side of every object."""
+    gap: float = 0.3
+    """Scene: the space between neighbouring objects placed automatically."""
+    floor: bool = True
+    """Scene: a large textured floor at z = 0 (--no-floor leaves the objects floating over the background)."""
+    background: bool = True
+    """Scene: a far textured sphere around everything, so every pixel is opaque."""
+    cameras: Literal["hemisphere", "arc", "sphere"] | None = None
+    """Scene: camera placement around the foreground box centre — hemisphere (the default: elevations 15°–65°),
+    arc (forward-facing: ±40° of azimuth in front of the scene, elevations 5°–20°) or sphere."""
 
 
-def _check(config: GenerateConfig) -> None:
+SCENE_OPTIONS = ("positions", "yaws", "object_size", "gap", "floor", "background", "cameras")
+"""The :class:`GenerateConfig` fields that only a scene (``objects``) uses."""
+
+
+def check_config(config: GenerateConfig) -> None:
+    """The checks of the options every generated dataset uses (one mesh or a scene)."""
     for name in ("n_train", "n_val", "n_test", "resolution", "supersample"):
         value = getattr(config, name)
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise NerfEditError(f"{name}: expected a positive integer, got {value!r}")
-    if not config.radius > 0:
+    if config.radius is not None and not config.radius > 0:
         raise NerfEditError(f"radius: expected a positive distance, got {config.radius}")
     if config.up_axis not in ("y", "z"):
         raise NerfEditError(f"up_axis: expected 'y' or 'z', got {config.up_axis!r}")
     if config.fov_degrees is not None and not 0 < config.fov_degrees < 180:
         raise NerfEditError(f"fov_degrees: expected degrees in (0, 180), got {config.fov_degrees}")
+
+
+def framing(ball: float, radius: float | None, fov_degrees: float | None) -> tuple[float, float]:
+    """``(camera distance, field of view in radians)`` of cameras looking at the centre of a ball of radius
+    ``ball``: the one not given is chosen so that the ball enlarged by :data:`FOV_MARGIN` fills the image."""
+    if fov_degrees is None:
+        if radius is None or radius <= FOV_MARGIN * ball:
+            raise NerfEditError(f"radius: {radius} puts the cameras inside the object's bounding ball")
+        return radius, 2.0 * math.asin(FOV_MARGIN * ball / radius)
+    fov = math.radians(fov_degrees)
+    return (FOV_MARGIN * ball / math.sin(fov / 2) if radius is None else radius), fov
+
+
+def write_dataset(
+    stage: Path,
+    config: GenerateConfig,
+    mesh: SurfaceMesh,
+    poses: Callable[[int, int], torch.Tensor],
+    fov: float,
+    aabb: np.ndarray,
+    extra: dict,
+) -> None:
+    """Write a generated dataset into the (staging) folder ``stage``: per split, ``poses(n, seed)`` cameras (seeds
+    ``config.seed``, +1, +2 for train, val, test) rendered into ``{split}/r_{i}.png`` and
+    ``transforms_{split}.json`` (Blender keys, ``aabb``, ``supersample``, then ``extra``); ``mesh.ply``;
+    ``config.yml``."""
+    counts = {"train": config.n_train, "val": config.n_val, "test": config.n_test}
+    for offset, split in enumerate(SPLITS):
+        size = config.resolution
+        cameras = Cameras.from_fov(poses(counts[split], config.seed + offset), size, size, fov)
+        names = [f"./{split}/r_{i}" for i in range(counts[split])]
+        _write_views(mesh, cameras, [stage / f"{name}.png" for name in names], config.supersample)
+        transforms = {
+            **blender_transforms(cameras, names),
+            "aabb": np.asarray(aabb).tolist(),
+            "supersample": config.supersample,
+            **extra,
+        }
+        (stage / f"transforms_{split}.json").write_text(json.dumps(transforms, indent=2))
+    mesh.save(stage / "mesh.ply")
+    write_config(stage / "config.yml", config)
 
 
 def generate_dataset(config: GenerateConfig) -> Path:
@@ -171,43 +261,51 @@ def generate_dataset(config: GenerateConfig) -> Path:
     ``supersample`` and ``source_transform``: the (4,4) similarity taking the given mesh's coordinates to the
     dataset's, up-axis rotation then normalisation, up to the float32 rounding of the written mesh),
     ``{split}/r_{i}.png`` (RGBA), ``mesh.ply`` (the exact geometry and colours rendered) and ``config.yml``. Returns
-    the dataset folder."""
-    _check(config)
+    the dataset folder. A scene (``config.objects``) is :func:`nerfedit_plugin.data.scene.generate_scene`'s."""
+    check_config(config)
+    if config.objects:
+        raise NerfEditError("objects: a scene; generate it with nerfedit_plugin.data.scene.generate_scene")
+    defaults = GenerateConfig(out=config.out)
+    for name in SCENE_OPTIONS:
+        if getattr(config, name) != getattr(defaults, name):
+            raise NerfEditError(f"{name}: an option of scenes; give the scene's meshes with --objects")
     mesh, frequency = load_scene_mesh(config.mesh)
-    source_to_world = np.eye(4)
-    if config.up_axis == "y":  # (x, y, z) -> (x, -z, y): a rotation taking +y to +z
-        source_to_world[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
-        mesh = mesh.with_vertices(mesh.vertices @ source_to_world[:3, :3].T)
-    centre, extent = longest_side_frame(mesh.vertices)
-    source_to_world[:3] = np.concatenate([source_to_world[:3, :3], -centre[:, None]], axis=1) / extent
-    mesh = normalize(mesh)
+    mesh, source_to_world = to_generator_frame(mesh, config.up_axis)
     if not (config.keep_colors and mesh.vertex_colors is not None):
         mesh = colorize(mesh, config.seed, frequency)
     ball = float(np.linalg.norm(mesh.vertices, axis=1).max())
-    if config.fov_degrees is None:
-        if config.radius <= FOV_MARGIN * ball:
-            raise NerfEditError(f"radius: {config.radius} puts the cameras inside the object's bounding ball")
-        fov = 2.0 * math.asin(FOV_MARGIN * ball / config.radius)
-    else:
-        fov = math.radians(config.fov_degrees)
-    aabb = [(mesh.vertices.min(0) - 0.1).tolist(), (mesh.vertices.max(0) + 0.1).tolist()]
-    counts = {"train": config.n_train, "val": config.n_val, "test": config.n_test}
+    radius, fov = framing(ball, DEFAULT_RADIUS if config.radius is None else config.radius, config.fov_degrees)
+    aabb = np.stack([mesh.vertices.min(0) - 0.1, mesh.vertices.max(0) + 0.1])
+
+    def poses(n: int, seed: int) -> torch.Tensor:
+        return sphere_poses(n, radius, hemisphere=config.hemisphere, seed=seed)
+
     with atomic_dir(config.out, config.overwrite) as stage:
-        for offset, split in enumerate(SPLITS):
-            poses = sphere_poses(counts[split], config.radius, hemisphere=config.hemisphere, seed=config.seed + offset)
-            cameras = Cameras.from_fov(poses, config.resolution, config.resolution, fov)
-            names = [f"./{split}/r_{i}" for i in range(counts[split])]
-            _write_views(mesh, cameras, [stage / f"{name}.png" for name in names], config.supersample)
-            transforms = {
-                **blender_transforms(cameras, names),
-                "aabb": aabb,
-                "supersample": config.supersample,
-                "source_transform": source_to_world.tolist(),
-            }
-            (stage / f"transforms_{split}.json").write_text(json.dumps(transforms, indent=2))
-        mesh.save(stage / "mesh.ply")
-        write_config(stage / "config.yml", config)
+        write_dataset(stage, config, mesh, poses, fov, aabb, {"source_transform": source_to_world.tolist()})
     return Path(config.out)
+
+
+def render_views(
+    mesh: SurfaceMesh,
+    transforms: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    supersample: int | None = None,
+    overwrite: bool = False,
+) -> list[Path]:
+    """Render a vertex-coloured mesh from every camera of a transforms file into ``out_dir/<frame image name>.png``
+    (RGBA), written atomically — the ground truth of an edit, given the edited mesh.
+
+    ``supersample`` defaults to the file's ``supersample`` key (written by :func:`generate_dataset`), else 2, so
+    the dataset's own mesh reproduces its images exactly. Returns the written paths in frame order.
+    """
+    parsed = read_transforms(transforms)
+    supersample = int(parsed.meta.get("supersample", 2)) if supersample is None else supersample
+    names = [path.with_suffix(".png").name for path in parsed.image_paths]
+    if len(set(names)) != len(names):
+        raise NerfEditError(f"{parsed.file}: frames share image names; cannot name the ground-truth images")
+    with atomic_dir(out_dir, overwrite) as stage:
+        _write_views(mesh, parsed.cameras, [stage / name for name in names], supersample)
+    return [Path(out_dir) / name for name in names]
 
 
 def render_ground_truth(
@@ -218,23 +316,12 @@ def render_ground_truth(
     supersample: int | None = None,
     overwrite: bool = False,
 ) -> list[Path]:
-    """Render the mesh with its vertices moved to ``deformed_vertices (V,3)`` (same faces and colours) from every
-    camera of a transforms file into ``out_dir/<frame image name>.png`` (RGBA), written atomically.
-
-    ``supersample`` defaults to the file's ``supersample`` key (written by :func:`generate_dataset`), else 2, so
-    the identity deformation reproduces the dataset's images exactly. Returns the written paths in frame order.
-    """
+    """:func:`render_views` of the mesh with its vertices moved to ``deformed_vertices (V,3)`` (same faces and
+    colours): the identity deformation reproduces the dataset's images exactly."""
     mesh = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
     deformed = np.asarray(deformed_vertices, dtype=np.float64)
     if deformed.shape != mesh.vertices.shape:
         raise NerfEditError(
             f"deformed vertices: expected shape {mesh.vertices.shape} (the mesh's vertices), got {deformed.shape}"
         )
-    parsed = read_transforms(transforms)
-    supersample = int(parsed.meta.get("supersample", 2)) if supersample is None else supersample
-    names = [path.with_suffix(".png").name for path in parsed.image_paths]
-    if len(set(names)) != len(names):
-        raise NerfEditError(f"{parsed.file}: frames share image names; cannot name the ground-truth images")
-    with atomic_dir(out_dir, overwrite) as stage:
-        _write_views(mesh.with_vertices(deformed), parsed.cameras, [stage / name for name in names], supersample)
-    return [Path(out_dir) / name for name in names]
+    return render_views(mesh.with_vertices(deformed), transforms, out_dir, supersample, overwrite)

@@ -4,7 +4,8 @@ Output folder (written atomically: staged beside the target, renamed on success)
 ``config.yml``, a copy of the spec, ``deformed_mesh.ply`` (or ``deformed_mesh_0000.ply`` … for sequences),
 ``deformation.npz`` (the lifted proxy: refined where the lift needed it), ``proxy.npz`` (the proxy as built, for
 ``--proxy-from``, when the lift refined it), ``report.json`` and whatever the deformer's optional
-``write_artifacts(out_dir)`` writes.
+``write_artifacts(out_dir)`` writes. A spec with ``objects`` is a scene edit (:mod:`~nerfedit_plugin.edit.objects`).
+An edit of an earlier edit's result (``base``) saves the two deformations chained (format 2).
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.bending.scene_deformation import SceneDeformation
 from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.edit.deformer import DeformerConfig
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
+from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
@@ -75,6 +78,37 @@ class EditResult:
     report: dict
 
 
+@dataclasses.dataclass(frozen=True)
+class Base:
+    """An earlier edit whose result is edited again: its folder and the frame whose deformed mesh is the new rest."""
+
+    folder: Path
+    frame: int
+
+    @classmethod
+    def of(cls, folder: str | os.PathLike, frame: int | None = None) -> Base:
+        """``folder`` (an edit folder) at ``frame`` (default its last); a folder without ``deformation.npz`` or a
+        frame out of range is a :class:`NerfEditError`."""
+        folder = Path(folder)
+        if not (folder / "deformation.npz").is_file():
+            raise NerfEditError(f"--base {folder}: not an edit folder (no deformation.npz)")
+        n = len(sorted(folder.glob("deformed_mesh*.ply")))
+        frame = n - 1 if frame is None else frame
+        if not 0 <= frame < n:
+            raise NerfEditError(f"--base-frame {frame}: out of range for the {n} frame(s) of {folder}")
+        return cls(folder, frame)
+
+    def mesh(self) -> SurfaceMesh:
+        """The base edit's deformed mesh of :attr:`frame`: the rest of the new edit."""
+        meshes = sorted(self.folder.glob("deformed_mesh*.ply"))
+        return SurfaceMesh.load(meshes[self.frame])
+
+    def chain(self, path: Path) -> None:
+        """Rewrite the new edit's ``deformation.npz`` at ``path`` as the base's deformation followed by it."""
+        base = SceneDeformation.load(self.folder / "deformation.npz")
+        base.chained(SceneDeformation.load(path), self.frame).save(path)
+
+
 def run_edit(
     mesh: SurfaceMesh | str | os.PathLike,
     deformer: DeformerConfig,
@@ -88,6 +122,7 @@ def run_edit(
     source_to_world: np.ndarray | None = None,
     cache_dir: str | os.PathLike | None = None,
     proxy_from: str | os.PathLike | None = None,
+    base: Base | None = None,
     overwrite: bool = False,
     record: dict | None = None,
     on_stage: Callable[[str], None] | None = None,
@@ -96,7 +131,29 @@ def run_edit(
     ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``. ``proxy_from`` (an earlier edit's folder or
     ``deformation.npz``) reuses its proxy instead of building one (:func:`reuse_proxy`). ``source_to_world`` (4,4):
     where a spec with ``frame: source`` is mapped from (a run's :meth:`~nerfedit_plugin.io.run.Run.source_transform`;
-    None: the identity, the mesh is its own source)."""
+    None: the identity, the mesh is its own source). ``base``: the edit whose deformed mesh ``mesh`` is; the saved
+    deformation chains onto it. A spec with ``objects`` runs :func:`~nerfedit_plugin.edit.objects.run_objects_edit`."""
+    if is_objects_spec(edit):
+        if proxy_from is not None:
+            raise NerfEditError("--proxy-from: not available for a scene edit (a spec with 'objects')")
+        return EditResult(
+            *run_objects_edit(
+                mesh,
+                deformer,
+                edit,
+                out,
+                lift=lift,
+                lift_config=lift_config,
+                proxy_config=proxy_config,
+                camera_distance=camera_distance,
+                source_to_world=source_to_world,
+                cache_dir=Path(cache_dir or default_cache_dir()),
+                base=base,
+                overwrite=overwrite,
+                record=record,
+                on_stage=on_stage,
+            )
+        )
     lift_config = LiftConfig() if lift_config is None else lift_config
     proxy_config = ProxyConfig() if proxy_config is None else proxy_config
     clock = Stopwatch(on_stage)
@@ -129,6 +186,8 @@ def run_edit(
             for name, positions in zip(names, frames):
                 rest.with_vertices(positions).save(stage / name)
             DeformationField(lifter.proxy.vertices, lifter.proxy.tets, lifted).save(stage / "deformation.npz")
+            if base is not None:
+                base.chain(stage / "deformation.npz")
             if lifter.refinements:  # else deformation.npz holds the proxy as built
                 proxy.save(stage / "proxy.npz")
             shutil.copyfile(edit, stage / Path(edit).name)
@@ -150,6 +209,7 @@ def run_edit(
             },
             "timings_s": clock.seconds,
             "per_frame": [dataclasses.asdict(r) for r in reports],
+            "base": None if base is None else {"folder": str(base.folder.resolve()), "frame": base.frame},
         }
         report["warnings"] = edit_warnings(report)
         (stage / "report.json").write_text(json.dumps(to_plain(report), indent=2))

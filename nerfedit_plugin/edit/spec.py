@@ -1,10 +1,11 @@
 """Edit specs (docs/architecture.md, "Edit spec"): handle selections, transforms and frame interpolation, from JSON
 or YAML.
 
-A handle selects rest-space points (``box``, ``sphere``, ``indices`` or a selection ``file``) and either pins them
-(``"fixed": true``) or moves them by a transform. At interpolation time t ∈ [0, 1] a transform maps
-``x ↦ c + (1 + (s − 1)t) R(t)(x − c) + t·translate`` where ``R(t)`` rotates by ``t·degrees`` about ``axis``
-(slerp from the identity) and the pivot ``c`` is ``rotate.center`` or else the selection's rest centroid.
+A handle selects rest-space points (:mod:`~nerfedit_plugin.edit.selection`: ``box``, ``sphere``, ``indices``, a
+selection ``file`` or a mesh ``component``) and either pins them (``"fixed": true``) or moves them by a transform.
+At interpolation time t ∈ [0, 1] a transform maps ``x ↦ c + (1 + (s − 1)t) R(t)(x − c) + t·translate`` where
+``R(t)`` rotates by ``t·degrees`` about ``axis`` (slerp from the identity) and the pivot ``c`` is ``rotate.center``
+or else the selection's rest centroid.
 ``frames = n`` gives t = 0, 1/(n−1), …, 1 (frame 0 is the rest pose); ``frames = 1`` gives t = 1.
 ``frame: source`` says the handles' coordinates are those of the mesh the data was generated from (the generator
 rotates and normalises it); :meth:`EditSpec.in_world` maps them onto the rest mesh.
@@ -26,101 +27,11 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.edit.selection_file import read_selection
+from nerfedit_plugin.edit.selection import Selection, parse_selection
+from nerfedit_plugin.edit.spec_values import check_keys, number, resolve_path, spec_error, vector
 from nerfedit_plugin.errors import NerfEditError
 
-SELECT_KINDS = ("box", "sphere", "indices", "file")
 FRAMES = ("world", "source")
-
-
-def spec_error(source: str, key: str, problem: str) -> NerfEditError:
-    """The error for a bad spec entry: ``"<source>: <key>: <problem>"`` (``source`` the file, ``key`` its dotted
-    path, e.g. ``handles[0].select.box.min``)."""
-    return NerfEditError(f"{source}: {key}: {problem}")
-
-
-def check_keys(obj: Any, allowed: Iterable[str], source: str, key: str, required: Iterable[str] = ()) -> dict:
-    """``obj`` itself if it is a mapping whose keys are all ``allowed`` and include every ``required`` one, else
-    :func:`spec_error` naming the first offending key (``key`` "" for the top level)."""
-    if not isinstance(obj, dict):
-        raise spec_error(source, key, f"expected a mapping, got {type(obj).__name__}")
-    allowed = set(allowed)
-    for name in obj:
-        if name not in allowed:
-            raise spec_error(
-                source, f"{key}.{name}" if key else str(name), f"unknown key (expected one of {sorted(allowed)})"
-            )
-    for name in required:
-        if name not in obj:
-            raise spec_error(source, f"{key}.{name}" if key else name, "missing")
-    return obj
-
-
-def vector(value: Any, source: str, key: str, n: int = 3) -> np.ndarray:
-    """``value`` (a list of ``n`` finite numbers, not booleans) → (n,) float64, else :func:`spec_error` naming
-    ``key``."""
-    if isinstance(value, (list, tuple)) and any(isinstance(item, bool) for item in value):
-        raise spec_error(source, key, f"expected {n} numbers, got {value!r}")
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float range
-        raise spec_error(source, key, f"expected {n} numbers, got {value!r}") from None
-    if arr.shape != (n,):
-        raise spec_error(source, key, f"expected {n} numbers, got {value!r}")
-    if not np.isfinite(arr).all():
-        raise spec_error(source, key, "contains NaN or Inf")
-    return arr
-
-
-def number(value: Any, source: str, key: str, positive: bool = False) -> float:
-    """``value`` (a finite int or float, not a bool; > 0 with ``positive``) → float, else :func:`spec_error`
-    naming ``key``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise spec_error(source, key, f"expected a number, got {value!r}")
-    try:
-        value = float(value)
-    except OverflowError:  # an integer beyond float range
-        raise spec_error(source, key, "is too large") from None
-    if not math.isfinite(value):
-        raise spec_error(source, key, "is NaN or Inf")
-    if positive and value <= 0:
-        raise spec_error(source, key, f"must be > 0, got {value}")
-    return float(value)
-
-
-@dataclass(frozen=True)
-class Selection:
-    """Which rest points a handle grabs: ``box`` (min/max corners), ``sphere`` (center/radius), ``indices`` or a
-    selection ``file`` (:mod:`~nerfedit_plugin.edit.selection_file`; its positions are in the spec's frame);
-    ``to_spec`` (4,4) float64 or None: the similarity taking rest points into the frame the box or sphere is given in
-    (set by :meth:`EditSpec.in_world`)."""
-
-    kind: str
-    params: dict
-    key: str
-    to_spec: np.ndarray | None = None
-
-    def indices(self, points: np.ndarray, source: str) -> np.ndarray:
-        """Sorted indices of the selected points; an empty or out-of-range selection is an error."""
-        placed = points
-        if self.to_spec is not None and self.kind != "indices":
-            placed = points @ self.to_spec[:3, :3].T + self.to_spec[:3, 3]
-        if self.kind == "file":
-            idx = self.params["file"].resolve(points, placed)
-        elif self.kind == "box":
-            inside = np.all((placed >= self.params["min"]) & (placed <= self.params["max"]), axis=1)
-            idx = np.flatnonzero(inside)
-        elif self.kind == "sphere":
-            dist = np.linalg.norm(placed - self.params["center"], axis=1)
-            idx = np.flatnonzero(dist <= self.params["radius"])
-        else:
-            idx = self.params["indices"]
-            if idx.size and (idx.min() < 0 or idx.max() >= len(points)):
-                bad = idx[(idx < 0) | (idx >= len(points))][0]
-                raise spec_error(source, self.key, f"index {bad} out of range for {len(points)} points")
-        if idx.size == 0:
-            raise spec_error(source, self.key, f"selects no points (of {len(points)})")
-        return idx
 
 
 @dataclass(frozen=True)
@@ -177,14 +88,7 @@ class EditSpec:
         if self.frame == "world":
             return self
         matrix = np.asarray(source_to_world, dtype=np.float64)
-        linear = matrix[:3, :3] if matrix.shape == (4, 4) else np.zeros((3, 3))
-        scale = np.cbrt(np.linalg.det(linear))
-        similar = matrix.shape == (4, 4) and np.isfinite(matrix).all() and scale > 0
-        if not (similar and np.allclose(linear.T @ linear, scale**2 * np.eye(3), rtol=0, atol=1e-9 * scale**2)):
-            raise spec_error(self.source, "frame", "the source-to-world transform is not a similarity")
-        inverse = np.eye(4)
-        inverse[:3, :3] = linear.T / scale**2
-        inverse[:3, 3] = -inverse[:3, :3] @ matrix[:3, 3]
+        inverse = source_to_spec(matrix, self.source)
         handles = tuple(
             Handle(
                 dataclasses.replace(handle.selection, to_spec=inverse),
@@ -199,8 +103,9 @@ class EditSpec:
         """Interpolation time of each frame."""
         return np.ones(1) if self.frames == 1 else np.linspace(0.0, 1.0, self.frames)
 
-    def handle_targets(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Resolve handles against rest ``points`` → ``(indices (H,), targets (frames, H, 3))``.
+    def handle_targets(self, points: np.ndarray, faces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Resolve handles against rest ``points`` (and the rest mesh's ``faces`` (F,3) over them, which ``component``
+        selections need) → ``(indices (H,), targets (frames, H, 3))``.
 
         A point selected by several handles follows the last one listed.
         """
@@ -209,13 +114,13 @@ class EditSpec:
         points = np.asarray(points, dtype=np.float64)
         owner = np.full(len(points), -1)
         for h, handle in enumerate(self.handles):
-            owner[handle.selection.indices(points, self.source)] = h
+            owner[handle.selection.indices(points, self.source, faces)] = h
         idx = np.flatnonzero(owner >= 0)
         targets = np.repeat(points[idx][None], self.frames, axis=0)
         for h, handle in enumerate(self.handles):
             if handle.transform is None:
                 continue
-            sel = handle.selection.indices(points, self.source)
+            sel = handle.selection.indices(points, self.source, faces)
             pivot = points[sel].mean(0)
             cols = np.searchsorted(idx, sel[owner[sel] == h])
             for f, t in enumerate(self.times):
@@ -258,53 +163,25 @@ class EditSpec:
         raise spec_error(self.source, key, "expected a file, a glob pattern or a non-empty list of files")
 
 
-def resolve_path(base_dir: Path, value: Any, source: str, key: str) -> Path:
-    """``base_dir / value`` resolved; a name the OS cannot represent (a NUL byte, longer than the file system
-    allows) is a spec error naming ``key``."""
-    try:
-        resolved = (base_dir / value).resolve()
-        resolved.is_file()
-    except (OSError, ValueError) as exc:
-        raise spec_error(source, key, f"invalid file path {value!r:.200} ({exc!s:.200})") from None
-    return resolved
+def source_to_spec(source_to_world: np.ndarray, source: str) -> np.ndarray:
+    """The inverse ``(4,4)`` of the similarity ``source_to_world`` (``x ↦ sRx + b``, s > 0, R a rotation): what takes
+    rest points into a ``frame: source`` spec's frame; any other matrix is a :func:`spec_error` of ``source``'s
+    ``frame``."""
+    matrix = np.asarray(source_to_world, dtype=np.float64)
+    linear = matrix[:3, :3] if matrix.shape == (4, 4) else np.zeros((3, 3))
+    scale = np.cbrt(np.linalg.det(linear))
+    similar = matrix.shape == (4, 4) and np.isfinite(matrix).all() and scale > 0
+    if not (similar and np.allclose(linear.T @ linear, scale**2 * np.eye(3), rtol=0, atol=1e-9 * scale**2)):
+        raise spec_error(source, "frame", "the source-to-world transform is not a similarity")
+    inverse = np.eye(4)
+    inverse[:3, :3] = linear.T / scale**2
+    inverse[:3, 3] = -inverse[:3, :3] @ matrix[:3, 3]
+    return inverse
 
 
-def _parse_selection(obj: Any, source: str, key: str, base_dir: Path) -> Selection:
-    check_keys(obj, SELECT_KINDS, source, key)
-    if len(obj) != 1:
-        raise spec_error(source, key, f"expected exactly one of {list(SELECT_KINDS)}")
-    kind, value = next(iter(obj.items()))
-    key = f"{key}.{kind}"
-    if kind == "box":
-        check_keys(value, ("min", "max"), source, key, required=("min", "max"))
-        lo, hi = vector(value["min"], source, f"{key}.min"), vector(value["max"], source, f"{key}.max")
-        if np.any(lo > hi):
-            raise spec_error(source, key, "min exceeds max")
-        return Selection(kind, {"min": lo, "max": hi}, key)
-    if kind == "file":
-        if not isinstance(value, (str, os.PathLike)):
-            raise spec_error(source, key, f"expected a selection file path, got {value!r}")
-        where = f"{source}: {key}"
-        return Selection(kind, {"file": read_selection(resolve_path(base_dir, value, source, key), where)}, key)
-    if kind == "sphere":
-        check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
-        center = vector(value["center"], source, f"{key}.center")
-        return Selection(
-            kind, {"center": center, "radius": number(value["radius"], source, f"{key}.radius", True)}, key
-        )
-    if (
-        not isinstance(value, list)
-        or not value
-        or not all(isinstance(i, int) and not isinstance(i, bool) for i in value)
-    ):
-        raise spec_error(source, key, "expected a non-empty list of integer vertex indices")
-    big = next((i for i in value if not -(2**63) <= i < 2**63), None)
-    if big is not None:
-        raise spec_error(source, key, f"index {big} out of range")
-    return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)
-
-
-def _parse_transform(obj: Any, source: str, key: str) -> Transform:
+def parse_transform(obj: Any, source: str, key: str) -> Transform:
+    """A ``transform`` mapping (``translate``, ``rotate`` {``axis``, ``degrees``, ``center``}, ``scale``) →
+    :class:`Transform`, or :func:`spec_error` naming the key."""
     check_keys(obj, ("translate", "rotate", "scale"), source, key)
     if not obj:
         raise spec_error(source, key, "empty transform")
@@ -344,13 +221,13 @@ def parse_edit_spec(
         for i, item in enumerate(data["handles"]):
             key = f"handles[{i}]"
             check_keys(item, ("select", "fixed", "transform"), source, key, required=("select",))
-            selection = _parse_selection(item["select"], source, f"{key}.select", Path(base_dir))
+            selection = parse_selection(item["select"], source, f"{key}.select", Path(base_dir))
             fixed = item.get("fixed", False)
             if not isinstance(fixed, bool):
                 raise spec_error(source, f"{key}.fixed", f"expected true or false, got {fixed!r}")
             if fixed == ("transform" in item):
                 raise spec_error(source, key, "needs exactly one of 'fixed': true or a 'transform'")
-            transform = None if fixed else _parse_transform(item["transform"], source, f"{key}.transform")
+            transform = None if fixed else parse_transform(item["transform"], source, f"{key}.transform")
             handles.append(Handle(selection, transform))
     frame = data.get("frame", "world")
     if frame not in FRAMES:
@@ -359,8 +236,9 @@ def parse_edit_spec(
     return EditSpec(tuple(handles), frames, extra, "frames" in data, source, Path(base_dir), frame)
 
 
-def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:
-    """Read a JSON or YAML edit spec (by suffix; ``.json`` else YAML) and validate it."""
+def read_spec_file(path: str | os.PathLike) -> Any:
+    """The parsed content of a JSON or YAML spec file (by suffix; ``.json`` else YAML), not yet validated; a missing,
+    unreadable or malformed file is a :class:`NerfEditError` naming it."""
     path = Path(path)
     if not path.is_file():
         raise NerfEditError(f"{path}: edit spec not found")
@@ -369,7 +247,12 @@ def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("hand
     except (OSError, UnicodeDecodeError) as exc:
         raise NerfEditError(f"{path}: cannot read ({exc})") from exc
     try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+        return json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (ValueError, yaml.YAMLError) as exc:  # ValueError: also an integer of more than 4300 digits
         raise NerfEditError(f"{path}: cannot parse ({exc})".replace("\n", " ")) from exc
-    return parse_edit_spec(data, allowed_keys, str(path), path.parent)
+
+
+def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:
+    """Read a JSON or YAML edit spec (:func:`read_spec_file`) and validate it."""
+    path = Path(path)
+    return parse_edit_spec(read_spec_file(path), allowed_keys, str(path), path.parent)

@@ -82,22 +82,37 @@ class SurfaceMesh:
         """vertices (V,3) float → a SurfaceMesh with the same connectivity and colours, new positions."""
         return SurfaceMesh(vertices, self.faces, self.vertex_colors)
 
-    def largest_component(self) -> SurfaceMesh:
-        """→ the connected part (through shared vertices) with the most faces, as a SurfaceMesh of ``V' ≤ V``
-        vertices; unused vertices dropped, the order of the kept ones unchanged."""
+    def component_labels(self) -> np.ndarray:
+        """→ (V,) int64 connected-part label of each vertex, 0 … C−1 (parts connect through faces; an unreferenced
+        vertex is a part of its own), numbered in the order of their lowest vertex."""
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
 
-        n, f = self.n_vertices, len(self.faces)
-        rows = np.repeat(np.arange(f), 3)
-        incidence = coo_matrix((np.ones(3 * f), (rows, self.faces.reshape(-1))), shape=(f, n)).tocsr()
-        _, labels = connected_components(incidence @ incidence.T, directed=False)
-        faces = self.faces[labels == np.bincount(labels).argmax()]
-        used = np.unique(faces)
-        remap = np.full(n, -1, dtype=np.int64)
-        remap[used] = np.arange(len(used))
-        colors = None if self.vertex_colors is None else self.vertex_colors[used]
-        return SurfaceMesh(self.vertices[used], remap[faces], colors)
+        n = self.n_vertices
+        edges = coo_matrix(
+            (np.ones(self.faces.size), (self.faces.reshape(-1), self.faces[:, [1, 2, 0]].reshape(-1))), (n, n)
+        )
+        return connected_components(edges, directed=False)[1].astype(np.int64)
+
+    def submesh(self, keep: np.ndarray) -> tuple[SurfaceMesh, np.ndarray]:
+        """keep (V,) bool → ``(mesh, index)``: the kept vertices (order and colours unchanged) with the faces whose
+        three vertices are all kept, and ``index (V,) int64``, each vertex's index in that mesh or −1."""
+        keep = np.asarray(keep, dtype=bool)
+        index = np.full(self.n_vertices, -1, dtype=np.int64)
+        index[keep] = np.arange(np.count_nonzero(keep))
+        faces = index[self.faces[keep[self.faces].all(axis=1)]]
+        colors = None if self.vertex_colors is None else self.vertex_colors[keep]
+        return SurfaceMesh(self.vertices[keep], faces, colors), index
+
+    def largest_component(self) -> SurfaceMesh:
+        """→ the connected part (through shared vertices) with the most faces (of equal ones, the one of the lowest
+        face), as a SurfaceMesh of ``V' ≤ V`` vertices; unused vertices dropped, the order of the kept ones
+        unchanged."""
+        labels = self.component_labels()
+        face_labels = labels[self.faces[:, 0]]
+        counts = np.bincount(face_labels)
+        biggest = face_labels[np.flatnonzero(counts[face_labels] == counts.max())[0]]
+        return self.submesh(labels == biggest)[0]
 
     # ---- conversions -------------------------------------------------------------------------
     def to_trimesh(self):

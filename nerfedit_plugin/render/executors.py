@@ -46,14 +46,14 @@ class ShotRenderer:
     """Loads the run's field and the deformation once; ``render(frame, camera)`` → ``(H,W,3)`` uint8."""
 
     def __init__(self, job: RenderJob) -> None:
-        from nerfedit_plugin.bending.deformation_field import DeformationField
+        from nerfedit_plugin.bending.scene_deformation import load_deformation
         from nerfedit_plugin.io.run import open_run
         from nerfedit_plugin.render.views import default_render_config
 
         torch.set_num_threads(job.threads)
         self.job = job
         self.field = open_run(job.run).field(job.device)
-        self.deformation = DeformationField.load(job.deformation) if job.deformation is not None else None
+        self.deformation = load_deformation(job.deformation) if job.deformation is not None else None
         self.config = default_render_config(self.field)
 
     def render(self, frame: int, camera: Cameras) -> np.ndarray:

@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from nerfedit_plugin.bending.deformation_field import DeformationField
+from nerfedit_plugin.bending.scene_deformation import SceneDeformation
 from nerfedit_plugin.data.datasets import to_uint8
 from nerfedit_plugin.edit.deformer import Deformer
+from nerfedit_plugin.edit.objects import is_objects_spec
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -113,15 +114,15 @@ def edit_geometries(
         deformed = SurfaceMesh.load(meshes[frame])
         out.append(_triangles(deformed.with_vertices(deformed.vertices + shift)))
     if layers & {"proxy", "deformed-proxy"} and (edit_dir / "deformation.npz").is_file():
-        field = DeformationField.load(edit_dir / "deformation.npz")
-        if "proxy" in layers:
-            out.append(_edges(field.rest_vertices, field.tets, (0.55, 0.55, 0.6)))
-        if "deformed-proxy" in layers:
-            out.append(_edges(field.deformed_vertices[frame] + shift, field.tets, (0.9, 0.55, 0.2)))
+        for _, rest, tets, deformed in SceneDeformation.load(edit_dir / "deformation.npz").proxies(frame):
+            if "proxy" in layers:
+                out.append(_edges(rest, tets, (0.55, 0.55, 0.6)))
+            if "deformed-proxy" in layers:
+                out.append(_edges(deformed + shift, tets, (0.9, 0.55, 0.2)))
     for overlay in (o for o in overlays if o.layer in layers):
         out += _overlay(overlay.rest, overlay.style, np.zeros(3)) + _overlay(overlay.deformed, overlay.style, shift)
     spec = Path(str(record.get("edit", ""))).name
-    if "handles" in layers and spec and (edit_dir / spec).is_file():
+    if "handles" in layers and spec and (edit_dir / spec).is_file() and not is_objects_spec(edit_dir / spec):
         handles = _handles(edit_dir / spec, deformer, deformer.handle_points(edit_dir, mesh))
         out += [handles] if handles is not None else []
     return out

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nerfedit_plugin.data.cameras import Cameras, generate_rays, look_at, sphere_poses
+from nerfedit_plugin.data.cameras import Cameras, generate_rays, look_at, orbit_poses, sphere_poses
 
 
 def random_cameras(n=4, width=40, height=30, seed=0) -> Cameras:
@@ -214,3 +214,23 @@ def test_sphere_poses_defaults_formula_and_seeded_offset():
     phi0 = torch.atan2(first[:, 1], first[:, 0]) % (2 * math.pi)
     assert 0.4 < float((phi0 < math.pi).double().mean()) < 0.6
     assert 0.1 < float((phi0 < 1.0).double().mean()) < 0.22  # 1 / 2π ≈ 0.16
+
+
+def test_orbit_poses_stay_in_their_band_look_at_the_centre_and_follow_the_seed():
+    center = np.array([0.5, -0.2, 0.3])
+    poses = orbit_poses(40, 3.0, center, elevation=(5.0, 20.0), azimuth=(-130.0, -50.0), seed=4)
+    offsets = poses[:, :3, 3].double().numpy() - center
+    assert np.allclose(np.linalg.norm(offsets, axis=1), 3.0, atol=1e-5)
+    elevation = np.degrees(np.arcsin(offsets[:, 2] / 3.0))
+    azimuth = np.degrees(np.arctan2(offsets[:, 1], offsets[:, 0]))
+    assert (elevation > 5 - 1e-3).all() and (elevation < 20 + 1e-3).all()
+    assert (azimuth > -130 - 1e-3).all() and (azimuth < -50 + 1e-3).all()
+    assert np.ptp(azimuth) > 70 and np.ptp(elevation) > 12  # spread over the band
+    axes = -poses[:, :3, 2].double().numpy()
+    assert np.allclose(axes, -offsets / 3.0, atol=1e-5)  # looking at the centre
+    assert (poses[:, 2, 1] > 0).all()  # image up points up
+    other = orbit_poses(40, 3.0, center, elevation=(5.0, 20.0), azimuth=(-130.0, -50.0), seed=5)[:, :3, 3].numpy()
+    assert np.linalg.norm(poses[:, None, :3, 3].numpy() - other[None], axis=-1).min() > 1e-3  # held-out views differ
+    assert torch.equal(poses, orbit_poses(40, 3.0, center, elevation=(5.0, 20.0), azimuth=(-130.0, -50.0), seed=4))
+    with pytest.raises(ValueError, match="n must be >= 1"):
+        orbit_poses(0, 1.0)

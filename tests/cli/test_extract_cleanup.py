@@ -1,0 +1,72 @@
+"""``nerfedit extract --drop-plane / --drop-floaters``: the run's mesh cleaned of a scene's floor and floaters (the
+extraction itself replaced by the generated scene, so no field is trained), the default output unchanged."""
+
+import numpy as np
+import pytest
+import yaml
+from scene_meshes import floor_scene
+
+import nerfedit_plugin.io.run
+from nerfedit_plugin.cli.app import main
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+SCENE = floor_scene()
+
+
+@pytest.fixture
+def run(tmp_path, monkeypatch):
+    """A trained field's run whose extraction gives the scene (its largest part with ``largest_component``);
+    ``calls`` records that flag."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "config.yml").write_text(yaml.safe_dump({"field": "nerf", "data": ".", "field_config": {}}))
+    calls = []
+
+    def extract_mesh(run, resolution, level, *, largest_component, overwrite):
+        calls.append(largest_component)
+        (SCENE.mesh.largest_component() if largest_component else SCENE.mesh).save(run.mesh_path)
+        return run.mesh_path
+
+    monkeypatch.setattr(nerfedit_plugin.io.run, "extract_mesh", extract_mesh)
+    return folder, calls
+
+
+def test_default_output_is_the_extraction_unchanged(run):
+    folder, calls = run
+    assert main(["extract", "--run", str(folder)]) == 0
+    assert calls == [True]
+    assert SurfaceMesh.load(folder / "mesh.ply").n_vertices == SCENE.mesh.n_vertices - len(SCENE.floater)
+
+
+def test_drop_plane_leaves_the_objects(run):
+    folder, calls = run
+    assert main(["extract", "--run", str(folder), "--drop-plane"]) == 0
+    mesh, boxes = SurfaceMesh.load(folder / "mesh.ply"), np.concatenate(SCENE.boxes)
+    assert calls == [True]  # the floaters went with the largest part: the floor holds the objects
+    np.testing.assert_allclose(mesh.vertices, SCENE.mesh.vertices[boxes])
+    np.testing.assert_allclose(mesh.vertex_colors, SCENE.mesh.vertex_colors[boxes], atol=1 / 255)
+    assert mesh.component_labels().max() + 1 == 2
+
+
+def test_drop_floaters_keeps_parts_above_the_fraction(run):
+    folder, calls = run
+    assert main(["extract", "--run", str(folder), "--drop-plane", "--drop-floaters", "0.5"]) == 0
+    assert calls == [False]  # every part extracted, then the small ones dropped
+    assert SurfaceMesh.load(folder / "mesh.ply").n_vertices == sum(len(box) for box in SCENE.boxes)
+    assert main(["extract", "--run", str(folder), "--drop-floaters", "0", "--overwrite"]) == 0
+    assert SurfaceMesh.load(folder / "mesh.ply").n_vertices == SCENE.mesh.n_vertices  # 0 keeps every part
+
+
+def test_a_mesh_fields_mesh_is_not_cleaned(tmp_path, capsys):
+    SCENE.mesh.save(tmp_path / "scene.ply")
+    assert main(["train", "--field", "mesh", "--data", str(tmp_path / "scene.ply"), "--out", str(tmp_path / "r")]) == 0
+    before = (tmp_path / "r" / "mesh.ply").read_bytes()
+    capsys.readouterr()
+    assert main(["extract", "--run", str(tmp_path / "r"), "--drop-plane"]) == 2
+    assert "the mesh field's mesh is its field and stays whole" in capsys.readouterr().err
+    assert (tmp_path / "r" / "mesh.ply").read_bytes() == before
+
+
+def test_bad_fraction_is_an_option_error(tmp_path, capsys):
+    assert main(["extract", "--run", str(tmp_path), "--drop-floaters", "1.5"]) == 2
+    assert "--drop-floaters: must be in [0, 1], got 1.5" in capsys.readouterr().err
