@@ -32,6 +32,9 @@ _API = {
     "read_transforms": "data.datasets",
     "GenerateConfig": "data.synthetic",
     "generate_dataset": "data.synthetic",
+    "generate_scene": "data.scene",
+    "read_scene": "data.scene",
+    "scene_mesh": "data.scene",
     # editing
     "EditSpec": "edit.spec",
     "load_edit_spec": "edit.spec",
@@ -44,6 +47,8 @@ _API = {
     "run_edit": "edit.job",
     # bending and rendering
     "DeformationField": "bending.deformation_field",
+    "SceneDeformation": "bending.scene_deformation",
+    "load_deformation": "bending.scene_deformation",
     "RenderConfig": "render.renderer",
     "render_image": "render.renderer",
     "render_views": "render.views",
@@ -81,9 +86,11 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.bending.deformation_field import DeformationField
+    from nerfedit_plugin.bending.scene_deformation import SceneDeformation, load_deformation
     from nerfedit_plugin.config import InstantiateConfig
     from nerfedit_plugin.data.cameras import Cameras
     from nerfedit_plugin.data.datasets import Dataset, load_dataset, read_transforms
+    from nerfedit_plugin.data.scene import generate_scene, read_scene, scene_mesh
     from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
     from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
     from nerfedit_plugin.edit.job import run_edit

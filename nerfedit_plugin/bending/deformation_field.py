@@ -189,7 +189,8 @@ class DeformationField:
             ok = (torch.linalg.det(edges) != 0) & ~still  # the others get A_t = I
             eye = torch.eye(3, dtype=torch.float64, device=self.device)
             jacobian = edges_rest @ torch.linalg.inv(torch.where(ok[:, None, None], edges, eye))
-            locator = self._locator(deformed)
+            unmoved = np.array_equal(self.deformed_vertices[frame], self.rest_vertices)
+            locator = self._rest() if unmoved else self._locator(deformed)  # a frame at rest shares its locator
             near = _near_grid(locator, self._rest())
             self._frames[frame] = _Frame(
                 locator,

@@ -97,6 +97,10 @@ class SceneDeformation:
                 )
                 for i in stage.instances
             ]
+            shared: dict[int, DeformationField] = {}
+            for inst, deformation in zip(stage.instances, stage._fields):  # one rest locator per object
+                first = shared.setdefault(inst.object, deformation)
+                deformation._rest_locator, deformation._face_pairs = first._rest(), first._face_pairs
             placed = {i.object for i in stage.instances}
             stage._vacated = [
                 TetLocator(o.rest_vertices, o.tets, dtype=dtype, device=device, kernel=kernel)

@@ -48,9 +48,9 @@ NOT_LOADED = frozenset({"load_config", "overwrite", "verbose"})
 """Recorded args that ``--load-config`` never takes from the file: they are about one invocation, not the work
 (a re-run never replaces a folder unless ``--overwrite`` is given again)."""
 
-PATH_STRINGS = frozenset({"mesh"})
-"""``str`` args that name a file unless they are ``sample:NAME`` or ``shape:NAME`` (recorded absolute, like ``Path``
-args)."""
+PATH_STRINGS = frozenset({"mesh", "objects"})
+"""``str`` args (or tuples of them) that name files unless they are ``sample:NAME`` or ``shape:NAME`` (recorded
+absolute, like ``Path`` args)."""
 
 LOAD_CONFIG = (
     "load_config",
@@ -291,13 +291,19 @@ def _one_line_instantiation_errors(groups: dict[type, str]) -> Iterator[None]:
 def recorded(args: Any) -> Any:
     """``args`` as ``config.yml`` records them: top-level paths (``Path`` values and :data:`PATH_STRINGS`) made
     absolute, so ``--load-config`` re-runs from any folder."""
+
+    def absolute(value: str) -> str:
+        return value if value.startswith(("sample:", "shape:")) else os.path.abspath(value)
+
     changes = {}
     for field in dataclasses.fields(args):
         value = getattr(args, field.name)
-        if isinstance(value, Path) or (
-            field.name in PATH_STRINGS and isinstance(value, str) and not value.startswith(("sample:", "shape:"))
-        ):
-            changes[field.name] = type(value)(os.path.abspath(value))
+        if isinstance(value, Path):
+            changes[field.name] = Path(os.path.abspath(value))
+        elif field.name in PATH_STRINGS and isinstance(value, str):
+            changes[field.name] = absolute(value)
+        elif field.name in PATH_STRINGS and isinstance(value, tuple):  # e.g. generate --objects
+            changes[field.name] = tuple(absolute(v) if isinstance(v, str) else v for v in value)
     return dataclasses.replace(args, **changes)
 
 
