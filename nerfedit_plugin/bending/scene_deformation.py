@@ -6,7 +6,8 @@ moved or not, and its copies; a removed object has no instance of its own). A de
 
 - inside some instance's ``T'_i``: mapped by the *first* such instance in instance order (objects in spec order, each
   object's original before its copies), ``x_c = Σ b_j r_j`` of that instance's tet (:class:`DeformationField`);
-- else inside some object's rest ``T_o``: empty (vacated);
+- else inside the rest ``T_o`` of an object that an instance left (``Instance.vacates``: an original, not a copy) or
+  that was removed: empty (vacated);
 - else: ``x`` itself (identity; Jacobian ``I``).
 
 A chain of stages (the second edit's rest is the first one's deformed mesh) maps ``x`` through the newest stage, then
@@ -47,6 +48,9 @@ class Instance(NamedTuple):
     name: str
     object: int  # index into the stage's objects
     deformed_vertices: np.ndarray  # (F,N,3) float64, N = its object's rest vertex count
+    vacates: bool = True
+    """Whether the part of its object's rest region it does not cover is emptied (an original moved away); a copy,
+    which only reads the region, does not."""
 
 
 @dataclass
@@ -101,7 +105,7 @@ class SceneDeformation:
             for inst, deformation in zip(stage.instances, stage._fields):  # one rest locator per object
                 first = shared.setdefault(inst.object, deformation)
                 deformation._rest_locator, deformation._face_pairs = first._rest(), first._face_pairs
-            placed = {i.object for i in stage.instances}
+            placed = {i.object for i in stage.instances if i.vacates}  # the others are vacated whole
             stage._vacated = [
                 TetLocator(o.rest_vertices, o.tets, dtype=dtype, device=device, kernel=kernel)
                 for k, o in enumerate(stage.objects)
@@ -195,7 +199,7 @@ class SceneDeformation:
                 {
                     "frame": stage.frame,
                     "objects": [o.name for o in stage.objects],
-                    "instances": [{"name": i.name, "object": i.object} for i in stage.instances],
+                    "instances": [{"name": i.name, "object": i.object, "vacates": i.vacates} for i in stage.instances],
                 }
             )
             for o, obj in enumerate(stage.objects):
@@ -252,7 +256,9 @@ def _read_stages(data, where: str) -> list[Stage]:
                 key = f"s{s}_i{i}_deformed_vertices"
                 if key not in data.files:
                     raise NerfEditError(f"{where}: missing key '{key}'")
-                instances.append(Instance(str(inst["name"]), int(inst["object"]), data[key]))
+                instances.append(
+                    Instance(str(inst["name"]), int(inst["object"]), data[key], bool(inst.get("vacates", True)))
+                )
             stages.append(Stage(objects, instances, int(entry["frame"])))
     except (KeyError, TypeError, ValueError) as error:
         raise NerfEditError(f"{where}: layout: malformed ({error!r})") from None
@@ -272,7 +278,7 @@ def _checked(stage: Stage, where: str) -> Stage:
             raise NerfEditError(f"{where}: instance {inst.name!r}: object {inst.object} out of range")
         rest, tets = objects[inst.object][1:]
         _, _, deformed = validate_arrays(rest, tets, inst.deformed_vertices, f"{where}: instance {inst.name!r}")
-        instances.append(Instance(inst.name, inst.object, deformed))
+        instances.append(Instance(inst.name, inst.object, deformed, inst.vacates))
         frames.add(len(deformed))
     if len(frames - {1}) > 1:
         raise NerfEditError(f"{where}: instances have different frame counts {sorted(frames)} (1 or one count)")
@@ -300,7 +306,7 @@ def _bend_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor
     tet = torch.full((len(x),), -1, dtype=torch.int64, device=x.device)
     empty = torch.zeros(len(x), dtype=torch.bool, device=x.device)
     todo, offset = None, 0
-    for deformation in stage._fields:
+    for instance, deformation in zip(stage.instances, stage._fields):
         pending = x if todo is None else x.index_select(0, todo)
         bent = deformation.bend(pending, frame)
         mapped = bent.tet >= 0
@@ -308,8 +314,9 @@ def _bend_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor
         where = rows if todo is None else todo.index_select(0, rows)
         out.index_copy_(0, where, bent.points.index_select(0, rows))
         tet.index_copy_(0, where, bent.tet.index_select(0, rows) + offset)
-        vacated = torch.nonzero(bent.empty).squeeze(1)
-        empty.index_fill_(0, vacated if todo is None else todo.index_select(0, vacated), True)
+        if instance.vacates:
+            vacated = torch.nonzero(bent.empty).squeeze(1)
+            empty.index_fill_(0, vacated if todo is None else todo.index_select(0, vacated), True)
         left = torch.nonzero(~mapped).squeeze(1)
         todo = left if todo is None else todo.index_select(0, left)
         offset += len(deformation.tets)

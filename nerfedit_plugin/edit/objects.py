@@ -55,6 +55,7 @@ from nerfedit_plugin.edit.spec import (
     source_to_spec,
 )
 from nerfedit_plugin.edit.spec_values import check_keys, spec_error
+from nerfedit_plugin.edit.vacated import fill_patch
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
@@ -62,7 +63,8 @@ from nerfedit_plugin.quality import edit_warnings
 from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.timing import Stopwatch
 
-OBJECT_KEYS = ("name", "select", "deformer", "edit", "place", "remove", "copies")
+OBJECT_KEYS = ("name", "select", "deformer", "edit", "place", "remove", "copies", "vacated")
+VACATED = ("empty", "fill")
 COPY_KEYS = ("name", "deformer", "edit", "place")
 
 
@@ -86,6 +88,14 @@ class ObjectSpec:
     instances: tuple[InstanceSpec, ...]
     """The original first (absent when removed), then the copies."""
     removed: bool
+    vacated: str = "empty"
+    """What the floor it leaves shows: ``empty`` (what the field holds there) or ``fill``
+    (:mod:`~nerfedit_plugin.edit.vacated`)."""
+
+    @property
+    def leaves(self) -> bool:
+        """Whether its original leaves its place (removed, edited or placed)."""
+        return self.removed or self.instances[0].edit is not None or self.instances[0].place is not None
 
 
 @dataclass(frozen=True)
@@ -160,7 +170,10 @@ def load_objects_spec(
             check_keys(copy, COPY_KEYS, source, ckey, required=("place",))
             cname = _name(copy, f"{name}#{c + 1}", source, ckey, names)
             instances.append(_instance(copy, cname, ckey, registry, default_deformer, world, frame, base_dir, source))
-        objects.append(ObjectSpec(name, key, selection, tuple(instances), removed))
+        vacated = item.get("vacated", "empty")
+        if vacated not in VACATED:
+            raise spec_error(source, f"{key}.vacated", f"expected one of {list(VACATED)}, got {vacated!r}")
+        objects.append(ObjectSpec(name, key, selection, tuple(instances), removed, vacated))
     return ObjectsSpec(tuple(objects), source)
 
 
@@ -245,6 +258,31 @@ def _run_instance(
     return _Placed(inst, np.asarray(frames, dtype=np.float64), np.asarray(lifted, dtype=np.float64), used, report)
 
 
+def _own_regions(
+    name: str, runs: list[_Placed], removed: TetProxy | None, surface: SurfaceMesh, others: SurfaceMesh, objects: list
+) -> int:
+    """Append one scene object ``name`` per distinct rest proxy of ``runs`` (a refined lift makes its own; a ``removed``
+    object's built proxy too, when nothing carries it): its own region (:func:`own_region`), and set each run's
+    ``owner`` and ``own`` frames. → the index of the region the original leaves (the removed proxy's, else the
+    first run's)."""
+    groups: dict[int, list[_Placed]] = {}
+    for run in runs:
+        groups.setdefault(id(run.proxy), []).append(run)
+    if removed is not None:
+        groups.setdefault(id(removed), [])
+    index = {}
+    for key, members in groups.items():
+        proxy = members[0].proxy if members else removed
+        stacked = np.concatenate([m.lifted for m in members]) if members else proxy.vertices[None]
+        vertices, tets, frames = own_region(proxy.vertices, proxy.tets, stacked, surface, others)
+        index[key] = len(objects)
+        objects.append(SceneObject(name, vertices, tets))
+        for m, own in zip(members, np.split(frames, np.cumsum([len(m.lifted) for m in members])[:-1])):
+            m.owner, m.own = index[key], own
+            m.report["own_tets"] = len(tets)
+    return index[id(removed)] if removed is not None else runs[0].owner
+
+
 def _overlaps(placed: list[_Placed], objects: list[SceneObject]) -> list[dict]:
     """Per pair of instances whose deformed own regions overlap: how many of the later one's surface vertices (last
     frame) lie in the earlier one's (resolved in favour of the earlier, as rendered)."""
@@ -322,7 +360,7 @@ def run_objects_edit(
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
         spec = load_objects_spec(edit, default_deformer, source_to_world)
         selected = spec.resolve(rest)
-    objects, instances, placed, reports = [], [], [], []
+    objects, instances, placed, reports, patches = [], [], [], [], []
     with atomic_dir(out, overwrite=overwrite) as stage:
         for obj, idx in zip(spec.objects, selected):
             mask = np.zeros(rest.n_vertices, dtype=bool)
@@ -332,21 +370,13 @@ def run_objects_edit(
                 proxy, cached = cached_proxy(surface, proxy_config, cache_dir, camera_distance)
             with clock.stage(f"edit {obj.name}"):
                 runs = [_run_instance(inst, surface, proxy, lift, lift_config, stage) for inst in obj.instances]
-            groups: dict[int, list[_Placed]] = {}  # instances by rest proxy (a refined lift makes its own)
-            for run in runs:
-                groups.setdefault(id(run.proxy), []).append(run)
-            if obj.removed and id(proxy) not in groups:  # nothing carries its rest region: vacated
-                groups[id(proxy)] = []
             with clock.stage(f"own {obj.name}"):
-                for members in groups.values():
-                    rest_proxy = members[0].proxy if members else proxy
-                    stacked = np.concatenate([m.lifted for m in members]) if members else proxy.vertices[None]
-                    vertices, tets, frames = own_region(rest_proxy.vertices, rest_proxy.tets, stacked, surface, others)
-                    objects.append(SceneObject(obj.name, vertices, tets))
-                    for m, own in zip(members, np.split(frames, np.cumsum([len(m.lifted) for m in members])[:-1])):
-                        m.owner, m.own = len(objects) - 1, own
-                        m.report["own_tets"] = len(tets)
-            instances += [Instance(run.spec.name, run.owner, run.own) for run in runs]
+                left = _own_regions(obj.name, runs, proxy if obj.removed else None, surface, others, objects)
+            originals = [not obj.removed] + [False] * (len(runs) - 1)  # copies read their region, vacate nothing
+            instances += [Instance(r.spec.name, r.owner, r.own, vacates) for r, vacates in zip(runs, originals)]
+            if obj.vacated == "fill" and obj.leaves:
+                rest_patch, tets, slab = fill_patch(rest, objects[left].rest_vertices, surface.bbox_diagonal)
+                patches.append((SceneObject(f"{obj.name}~fill", rest_patch, tets), slab))
             placed.append(runs)
             reports.append(
                 {
@@ -354,6 +384,7 @@ def run_objects_edit(
                     "surface": {"vertices": surface.n_vertices, "faces": len(surface.faces)},
                     "proxy": {"vertices": len(proxy.vertices), "tets": len(proxy.tets), "cached": cached},
                     "removed": obj.removed,
+                    "vacated": obj.vacated,
                     "instances": [r.report for r in runs],
                 }
             )
@@ -361,6 +392,9 @@ def run_objects_edit(
         if len(counts) > 1:
             raise NerfEditError(f"{spec.source}: objects' edits have different frame counts {sorted(counts)}")
         n_frames = max(counts, default=1)
+        for patch, slab in patches:  # after every object: moved objects show where they are
+            instances.append(Instance(patch.name, len(objects), slab[None], vacates=False))
+            objects.append(patch)
         with clock.stage("write"):
             deformation = SceneDeformation([Stage(objects, instances)])
             deformation.save(stage / "deformation.npz")

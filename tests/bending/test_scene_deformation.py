@@ -191,3 +191,17 @@ def test_load_errors_name_the_file_and_key(tmp_path, two_boxes):
         load_deformation(tmp_path / "nan.npz")
     with pytest.raises(NerfEditError, match="deformation file not found"):
         load_deformation(tmp_path / "absent.npz")
+
+
+def test_copies_do_not_vacate_and_a_removed_object_with_copies_is_vacated(two_boxes):
+    """A moved original empties the part of its rest box it left; a copy never does (it only reads the region); an
+    object whose original is removed is empty at rest even when copies of it are placed elsewhere."""
+    a, _ = two_boxes
+    inside = grid_points([0.1] * 3, [0.9] * 3, 5)
+    copy = Instance("a#1", 0, (a.rest_vertices + [0, 3.0, 0])[None], vacates=False)
+    stays = SceneDeformation([Stage([a], [Instance("a", 0, a.rest_vertices[None]), copy])])
+    assert not stays.bend(inside).empty.any() and torch.equal(stays.bend(inside).points, inside.float())
+    removed = SceneDeformation([Stage([a], [copy])])
+    assert removed.bend(inside).empty.all()
+    moved_copy = removed.bend(inside + torch.tensor([0, 3.0, 0], dtype=torch.float64))
+    assert not moved_copy.empty.any() and torch.allclose(moved_copy.points, inside.float(), atol=1e-6)

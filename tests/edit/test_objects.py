@@ -239,3 +239,27 @@ def test_bad_scene_specs_fail_before_any_work(scene, tmp_path, proxy_cache, obje
     with pytest.raises(NerfEditError, match=message):
         edit(scene, tmp_path, {"objects": objects}, proxy_cache)
     assert not (tmp_path / "out").exists()
+
+
+def test_vacated_fill_copies_neighbouring_floor_over_the_footprint(scene, tmp_path, proxy_cache):
+    """The box is removed with ``vacated: fill``: floor points of its old footprint map sideways onto the floor
+    beside it (by at least the footprint's width), points above the floor slab there stay empty, the cylinder and
+    the floor elsewhere are untouched."""
+    spec = {"objects": [{"name": "box", "select": BOX, "remove": True, "vacated": "fill"}]}
+    result = edit(scene, tmp_path, spec, proxy_cache)
+    deformation = load_deformation(result.out / "deformation.npz")
+    assert [i.name for i in deformation.stages[0].instances] == ["box~fill"]
+    rng = np.random.default_rng(2)
+    footprint = rng.uniform([-0.53, -0.13], [-0.27, 0.13], (500, 2))  # the box stood on [-0.55, -0.25] × [-0.15, 0.15]
+    floor = torch.as_tensor(np.column_stack([footprint, np.full(500, 0.002)]))
+    bent = deformation.bend(floor)
+    assert (bent.tet >= 0).all() and not bent.empty.any()
+    shift = (bent.points.double() - floor).numpy()
+    assert np.allclose(shift, shift[0], atol=1e-5) and np.linalg.norm(shift[0]) >= 0.3  # one translation …
+    assert abs(shift[0, 2]) < 0.01 * np.linalg.norm(shift[0])  # … along the floor (its fitted plane)
+    above = floor + torch.tensor([0, 0, 0.2], dtype=torch.float64)
+    assert deformation.bend(above).empty.all()
+    elsewhere = torch.tensor([[0.4, 0.0, 0.2], [0.8, 0.8, 0.001], [0.0, -0.8, 0.001]], dtype=torch.float64)
+    untouched = deformation.bend(elsewhere)
+    assert not untouched.empty.any() and torch.equal(untouched.points, elsewhere.float())
+    assert result.report["objects"][0]["vacated"] == "fill"
