@@ -1,7 +1,10 @@
-"""Stage timers: wall seconds per named stage, for the reports of the edit job, the proxy build and the demo."""
+"""Stage timers (wall seconds per named stage) and the process's peak memory, for the reports of the edit job, the
+proxy build and the demo."""
 
 from __future__ import annotations
 
+import resource
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -34,3 +37,9 @@ class Stopwatch:
         yield
         total = self.seconds.get(name, 0.0) + time.perf_counter() - start
         self.seconds[name] = total if self.digits is None else round(total, self.digits)
+
+
+def peak_rss_mb() -> float:
+    """The process's peak resident memory so far in MiB (``getrusage``: kilobytes on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return round(peak / (1 << 20 if sys.platform == "darwin" else 1 << 10), 1)

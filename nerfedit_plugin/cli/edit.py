@@ -122,7 +122,8 @@ def _print_single(out: Path, report: dict) -> None:
         f"proxy {proxy['vertices']} vertices / {proxy['tets']} tets"
         f"{' (refined from ' + str(proxy['built_tets']) + ')' if proxy['refinements'] else ''}"
         f"{' (cached)' if proxy['cached'] and not proxy['reused_from'] else ''}"
-        f"{' (from ' + proxy['reused_from'] + ')' if proxy['reused_from'] else ''}; {timings}"
+        f"{' (from ' + proxy['reused_from'] + ')' if proxy['reused_from'] else ''}; {timings}; "
+        f"peak memory {report['peak_rss_mb']:.0f} MB"
     )
 
 
@@ -138,7 +139,10 @@ def _print_scene(out: Path, report: dict) -> None:
             rows.append((obj["name"], "(removed)", "", *("",) * 6))
     print_table(f"nerfedit edit (scene) → {out}", ("object", "instance", "frame", *COLUMNS), rows)
     timings = ", ".join(f"{k} {v:.2f}s" for k, v in report["timings_s"].items())
-    console.print(f"{len(report['objects'])} object(s), {len(report['overlaps'])} overlap(s); {timings}")
+    console.print(
+        f"{len(report['objects'])} object(s), {len(report['overlaps'])} overlap(s); {timings}; "
+        f"peak memory {report['peak_rss_mb']:.0f} MB"
+    )
 
 
 COMMAND = Command("edit", EditArgs, edit, plugin=("deformer", DEFORMERS, "arap"), records=True)

@@ -32,7 +32,7 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.quality import edit_warnings
-from nerfedit_plugin.timing import Stopwatch
+from nerfedit_plugin.timing import Stopwatch, peak_rss_mb
 
 
 def default_cache_dir() -> Path:
@@ -208,6 +208,7 @@ def run_edit(
                 "reused_from": None if proxy_from is None else str(Path(proxy_from).resolve()),
             },
             "timings_s": clock.seconds,
+            "peak_rss_mb": peak_rss_mb(),
             "per_frame": [dataclasses.asdict(r) for r in reports],
             "base": None if base is None else {"folder": str(base.folder.resolve()), "frame": base.frame},
         }

@@ -61,7 +61,7 @@ from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.quality import edit_warnings
 from nerfedit_plugin.registry import DEFORMERS, discover
-from nerfedit_plugin.timing import Stopwatch
+from nerfedit_plugin.timing import Stopwatch, peak_rss_mb
 
 OBJECT_KEYS = ("name", "select", "deformer", "edit", "place", "remove", "copies", "vacated")
 VACATED = ("empty", "fill")
@@ -423,6 +423,7 @@ def run_objects_edit(
             "overlaps": overlaps,
             "base": None if base is None else {"folder": str(base.folder.resolve()), "frame": base.frame},
             "timings_s": clock.seconds,
+            "peak_rss_mb": peak_rss_mb(),
             "warnings": found,
         }
         (stage / "report.json").write_text(json.dumps(to_plain(report), indent=2))
