@@ -63,6 +63,7 @@ class Stage:
     frame: int = 0
     _fields: list[DeformationField] = field(default_factory=list, repr=False)
     _vacated: list[TetLocator] = field(default_factory=list, repr=False)
+    _grids: dict = field(default_factory=dict, repr=False)  # frame -> _slot_grid
 
     @property
     def n_frames(self) -> int:
@@ -300,30 +301,68 @@ def _frames(deformed: np.ndarray, n: int) -> np.ndarray:
     return np.broadcast_to(deformed, (n, *deformed.shape[1:])) if len(deformed) == 1 else deformed
 
 
+GRID_CELLS = 32
+"""Cells per axis of a stage's slot grid: which instances (and removed objects) a cell of space may concern."""
+
+
+def _slot_grid(stage: Stage, frame: int) -> tuple[torch.Tensor, ...]:
+    """``(low (3,), high (3,), scale (3,), mask (C³,) int64)`` over the union, grown by one cell, of the boxes a
+    stage's slots concern — instance ``j``: its deformed frame (and its object's rest when it vacates); then each
+    removed object: its rest. Bit ``j mod 63`` of a cell is set where slot ``j``'s box, grown by one cell, reaches it:
+    a point outside ``[low, high]`` or in a cell without slot ``j``'s bit is outside all slot ``j`` maps or empties."""
+    if frame not in stage._grids:
+        boxes = []
+        for inst in stage.instances:
+            points = [_frames(inst.deformed_vertices, stage.n_frames)[frame]]
+            points += [stage.objects[inst.object].rest_vertices] if inst.vacates else []
+            boxes.append(np.concatenate(points))
+        placed = {i.object for i in stage.instances if i.vacates}
+        boxes += [o.rest_vertices for k, o in enumerate(stage.objects) if k not in placed]
+        boxes = np.stack([[b.min(0), b.max(0)] for b in boxes])
+        cell = (boxes[:, 1].max(0) - boxes[:, 0].min(0)).clip(1e-12) / (GRID_CELLS - 2)
+        low, high = boxes[:, 0].min(0) - cell, boxes[:, 1].max(0) + cell
+        scale = GRID_CELLS / (high - low)
+        mask = np.zeros((GRID_CELLS,) * 3, dtype=np.int64)
+        for j, (lo, hi) in enumerate(boxes):
+            a = np.clip(np.floor((lo - low) * scale).astype(np.int64) - 1, 0, GRID_CELLS - 1)
+            b = np.clip(np.floor((hi - low) * scale).astype(np.int64) + 1, 0, GRID_CELLS - 1)
+            mask[a[0] : b[0] + 1, a[1] : b[1] + 1, a[2] : b[2] + 1] |= np.int64(1) << (j % 63)
+        stage._grids[frame] = tuple(torch.as_tensor(a) for a in (low, high, scale, mask.reshape(-1)))
+    return stage._grids[frame]
+
+
+def _slots(stage: Stage, x: torch.Tensor, frame: int) -> torch.Tensor:
+    """``(M,)`` int64: the slot bits of the points' cells (:func:`_slot_grid`), 0 outside its box."""
+    low, high, scale, mask = (t.to(device=x.device) for t in _slot_grid(stage, frame))
+    u = ((x.double() - low) * scale).floor_().clamp_(0, GRID_CELLS - 1).long()
+    code = mask.index_select(0, (u[:, 0] * GRID_CELLS + u[:, 1]) * GRID_CELLS + u[:, 2])
+    outside = ((x.double() < low) | (x.double() > high)).any(1) | x.isnan().any(1)
+    return code.masked_fill_(outside, 0)
+
+
 def _bend_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Points ``x (M,3)`` through one stage → ``(points, tet (M,) stage index or -1, empty (M,))``."""
+    """Points ``x (M,3)`` through one stage → ``(points, tet (M,) stage index or -1, empty (M,))``. Each slot sees only
+    the points of cells it may concern (:func:`_slots`) that no earlier instance mapped."""
     out = x.clone()
     tet = torch.full((len(x),), -1, dtype=torch.int64, device=x.device)
     empty = torch.zeros(len(x), dtype=torch.bool, device=x.device)
-    todo, offset = None, 0
-    for instance, deformation in zip(stage.instances, stage._fields):
-        pending = x if todo is None else x.index_select(0, todo)
-        bent = deformation.bend(pending, frame)
-        mapped = bent.tet >= 0
-        rows = torch.nonzero(mapped).squeeze(1)
-        where = rows if todo is None else todo.index_select(0, rows)
-        out.index_copy_(0, where, bent.points.index_select(0, rows))
-        tet.index_copy_(0, where, bent.tet.index_select(0, rows) + offset)
-        if instance.vacates:
-            vacated = torch.nonzero(bent.empty).squeeze(1)
-            empty.index_fill_(0, vacated if todo is None else todo.index_select(0, vacated), True)
-        left = torch.nonzero(~mapped).squeeze(1)
-        todo = left if todo is None else todo.index_select(0, left)
+    code, offset = _slots(stage, x, frame), 0
+    for j, (instance, deformation) in enumerate(zip(stage.instances, stage._fields)):
+        rows = torch.nonzero(code & (1 << (j % 63))).squeeze(1)
+        if len(rows):
+            bent = deformation.bend(x.index_select(0, rows), frame)
+            mapped = torch.nonzero(bent.tet >= 0).squeeze(1)
+            where = rows.index_select(0, mapped)
+            out.index_copy_(0, where, bent.points.index_select(0, mapped))
+            tet.index_copy_(0, where, bent.tet.index_select(0, mapped) + offset)
+            code.index_fill_(0, where, 0)  # mapped: later slots never see it
+            if instance.vacates:
+                empty.index_fill_(0, rows[bent.empty], True)
         offset += len(deformation.tets)
-    for locator in stage._vacated:
-        pending = x if todo is None else x.index_select(0, todo)
-        inside = torch.nonzero(locator.member(pending) >= 0).squeeze(1)
-        empty.index_fill_(0, inside if todo is None else todo.index_select(0, inside), True)
+    for j, locator in enumerate(stage._vacated, start=len(stage.instances)):
+        rows = torch.nonzero(code & (1 << (j % 63))).squeeze(1)
+        if len(rows):
+            empty.index_fill_(0, rows[locator.member(x.index_select(0, rows)) >= 0], True)
     return out, tet, empty & (tet < 0)
 
 

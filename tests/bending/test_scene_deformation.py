@@ -205,3 +205,35 @@ def test_copies_do_not_vacate_and_a_removed_object_with_copies_is_vacated(two_bo
     assert removed.bend(inside).empty.all()
     moved_copy = removed.bend(inside + torch.tensor([0, 3.0, 0], dtype=torch.float64))
     assert not moved_copy.empty.any() and torch.allclose(moved_copy.points, inside.float(), atol=1e-6)
+
+
+def test_bend_through_the_slot_grid_equals_every_instance_on_every_point(capsule_proxy, two_boxes):
+    """The oracle of the cell prefilter: each instance's own DeformationField run on every point, first mapped wins,
+    empties of vacating instances and of removed objects, gives the same points, tets and empties bit for bit."""
+    v, t = capsule_proxy.vertices, capsule_proxy.tets
+    a, b = two_boxes
+    capsule = SceneObject("capsule", v, t)
+    instances = [
+        Instance("capsule", 0, moved(v, (0.3, 0.2, 0.1), (0.2, 0.0, 0.1))[None]),
+        Instance("capsule#1", 0, moved(v, (0.0, 0.0, 1.2), (1.5, 0.5, 0.0))[None], vacates=False),
+        Instance("capsule#2", 0, (v * 0.5 + [0.0, -1.0, 0.0])[None], vacates=False),
+        Instance("a", 1, (a.rest_vertices + [-2.0, 0.0, 0.0])[None]),
+    ]
+    scene = SceneDeformation([Stage([capsule, a, b], instances)])
+    x = grid_points([-3.0, -2.0, -1.5], [4.0, 2.0, 1.5], 41)
+    got = scene.bend(x)
+    points, tet, empty = x.float().clone(), torch.full((len(x),), -1), torch.zeros(len(x), dtype=torch.bool)
+    offset = 0
+    for inst in instances:
+        obj = scene.stages[0].objects[inst.object]
+        bent = DeformationField(obj.rest_vertices, obj.tets, inst.deformed_vertices).bend(x)
+        take = (bent.tet >= 0) & (tet < 0)
+        points[take], tet[take] = bent.points[take], bent.tet[take] + offset
+        empty |= bent.empty & inst.vacates
+        offset += len(obj.tets)
+    from nerfedit_plugin.bending.locate import TetLocator
+
+    empty |= TetLocator(b.rest_vertices, b.tets).member(x) >= 0  # b: removed (no instance)
+    empty &= tet < 0
+    assert (tet >= 0).any() and empty.any()
+    assert torch.equal(got.points, points) and torch.equal(got.tet, tet) and torch.equal(got.empty, empty)
