@@ -306,10 +306,11 @@ GRID_CELLS = 32
 
 
 def _slot_grid(stage: Stage, frame: int) -> tuple[torch.Tensor, ...]:
-    """``(low (3,), high (3,), scale (3,), mask (C³,) int64)`` over the union, grown by one cell, of the boxes a
-    stage's slots concern — instance ``j``: its deformed frame (and its object's rest when it vacates); then each
-    removed object: its rest. Bit ``j mod 63`` of a cell is set where slot ``j``'s box, grown by one cell, reaches it:
-    a point outside ``[low, high]`` or in a cell without slot ``j``'s bit is outside all slot ``j`` maps or empties."""
+    """``(low (3,), scale (3,), mask ((C+2)³,) int64)``: cells ``u = floor((x − low) scale) + 1`` in ``[1, C]`` over the
+    union, grown by one cell, of the boxes a stage's slots concern — instance ``j``: its deformed frame (and its
+    object's rest when it vacates); then each removed object: its rest — and a border layer (cells 0 and C+1) that
+    takes every point outside. Bit ``j mod 63`` of a cell is set where slot ``j``'s box, grown by one cell, reaches
+    it: a point in a cell without slot ``j``'s bit is outside all that slot maps or empties."""
     if frame not in stage._grids:
         boxes = []
         for inst in stage.instances:
@@ -320,29 +321,34 @@ def _slot_grid(stage: Stage, frame: int) -> tuple[torch.Tensor, ...]:
         boxes += [o.rest_vertices for k, o in enumerate(stage.objects) if k not in placed]
         boxes = np.stack([[b.min(0), b.max(0)] for b in boxes])
         cell = (boxes[:, 1].max(0) - boxes[:, 0].min(0)).clip(1e-12) / (GRID_CELLS - 2)
-        low, high = boxes[:, 0].min(0) - cell, boxes[:, 1].max(0) + cell
-        scale = GRID_CELLS / (high - low)
-        mask = np.zeros((GRID_CELLS,) * 3, dtype=np.int64)
+        low = boxes[:, 0].min(0) - cell
+        scale = GRID_CELLS / (boxes[:, 1].max(0) + cell - low)
+        mask = np.zeros((GRID_CELLS + 2,) * 3, dtype=np.int64)
         for j, (lo, hi) in enumerate(boxes):
-            a = np.clip(np.floor((lo - low) * scale).astype(np.int64) - 1, 0, GRID_CELLS - 1)
-            b = np.clip(np.floor((hi - low) * scale).astype(np.int64) + 1, 0, GRID_CELLS - 1)
+            a = np.clip(np.floor((lo - low) * scale).astype(np.int64), 1, GRID_CELLS)  # one cell grown, +1 border
+            b = np.clip(np.floor((hi - low) * scale).astype(np.int64) + 2, 1, GRID_CELLS)
             mask[a[0] : b[0] + 1, a[1] : b[1] + 1, a[2] : b[2] + 1] |= np.int64(1) << (j % 63)
-        stage._grids[frame] = tuple(torch.as_tensor(a) for a in (low, high, scale, mask.reshape(-1)))
+        stage._grids[frame] = (torch.as_tensor(low), torch.as_tensor(scale), torch.as_tensor(mask.reshape(-1)))
     return stage._grids[frame]
 
 
 def _slots(stage: Stage, x: torch.Tensor, frame: int) -> torch.Tensor:
-    """``(M,)`` int64: the slot bits of the points' cells (:func:`_slot_grid`), 0 outside its box."""
-    low, high, scale, mask = (t.to(device=x.device) for t in _slot_grid(stage, frame))
-    u = ((x.double() - low) * scale).floor_().clamp_(0, GRID_CELLS - 1).long()
-    code = mask.index_select(0, (u[:, 0] * GRID_CELLS + u[:, 1]) * GRID_CELLS + u[:, 2])
-    outside = ((x.double() < low) | (x.double() > high)).any(1) | x.isnan().any(1)
-    return code.masked_fill_(outside, 0)
+    """``(M,)`` int64: the slot bits of the points' cells (:func:`_slot_grid`; NaN points: none), one coordinate
+    column at a time as :func:`~nerfedit_plugin.bending.deformation_field._near` does."""
+    low, scale, mask = (t.to(device=x.device) for t in _slot_grid(stage, frame))
+    side, cell = GRID_CELLS + 2, None
+    for i, stride in enumerate((side * side, side, 1)):
+        u = (x[:, i] - float(low[i])).mul_(float(scale[i])).add_(1.0).clamp_(0.0, side - 1.0).floor_()
+        cell = u.mul_(stride) if cell is None else cell.add_(u, alpha=stride)
+    return mask.index_select(0, torch.nan_to_num_(cell, nan=0.0).to(torch.int64))
 
 
 def _bend_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Points ``x (M,3)`` through one stage → ``(points, tet (M,) stage index or -1, empty (M,))``. Each slot sees only
     the points of cells it may concern (:func:`_slots`) that no earlier instance mapped."""
+    if len(stage._fields) == 1 and not stage._vacated:  # one slot: nothing to sort out
+        bent = stage._fields[0].bend(x, frame)
+        return bent.points, bent.tet, bent.empty & stage.instances[0].vacates
     out = x.clone()
     tet = torch.full((len(x),), -1, dtype=torch.int64, device=x.device)
     empty = torch.zeros(len(x), dtype=torch.bool, device=x.device)
