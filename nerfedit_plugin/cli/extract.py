@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from typing import Literal
 
 from nerfedit_plugin.cli.common import Command, console
 from nerfedit_plugin.errors import NerfEditError, check_option
@@ -31,6 +32,9 @@ class ExtractArgs:
     instead of the largest part only: the objects of a scene without its floaters."""
     overwrite: bool = False
     """Replace an existing mesh.ply (a mesh field's own mesh.ply is kept without it: it is the field)."""
+    frame: Literal["world", "capture"] = "world"
+    """capture: also write RUN_DIR/mesh_capture.ply, the mesh in the capture's own coordinates (e.g. next to the
+    COLMAP points); mesh.ply stays in the run's frame, the one edits use."""
 
     def __post_init__(self) -> None:
         check_option(self, "resolution", self.resolution, self.resolution >= 2, "an integer >= 2")
@@ -42,7 +46,7 @@ class ExtractArgs:
 
 def extract(args: ExtractArgs) -> None:
     from nerfedit_plugin.geometry.cleanup import drop_floaters, drop_plane
-    from nerfedit_plugin.io.run import extract_mesh, open_run
+    from nerfedit_plugin.io.run import export_capture_mesh, extract_mesh, open_run
 
     run = open_run(args.run)
     clean = args.drop_plane or args.drop_floaters is not None
@@ -64,6 +68,8 @@ def extract(args: ExtractArgs) -> None:
         mesh.save(path)
     own = " (the mesh field's own mesh)" if run.from_mesh else ""
     console.print(f"{path}: {mesh.n_vertices} vertices, {len(mesh.faces)} faces{own}")
+    if args.frame == "capture":
+        console.print(f"capture frame → {export_capture_mesh(run, overwrite=args.overwrite)}")
 
 
 COMMAND = Command("extract", ExtractArgs, extract)

@@ -51,8 +51,15 @@ class RenderArgs:
     """Ray actors (default: the cluster's CPUs ÷ torch threads)."""
     overwrite: bool = False
     """Replace an existing image folder."""
+    frame_of_cameras: Literal["world", "capture"] = "world"
+    """capture: the cameras of --cameras are in the capture's own coordinates (a camera path or transforms file made
+    there, e.g. in Blender next to the COLMAP points; not a capture folder, which nerfedit normalises itself): they
+    are mapped by the run's capture-to-world similarity."""
+    downscale: int = 1
+    """Render the cameras of --cameras (or the trajectory) at their size divided by this integer."""
 
     def __post_init__(self) -> None:
+        check_option(self, "downscale", self.downscale, self.downscale >= 1, "a positive integer")
         check_option(self, "supersample", self.supersample, self.supersample >= 1, "a positive integer")
         check_option(self, "view", self.view, self.view >= 0, ">= 0")
         check_option(self, "size", self.size, self.size >= 1, "a positive integer")
@@ -75,11 +82,13 @@ def render_run(
     supersample: int = 1,
     record: Any = None,
     resume: bool = False,
+    frame_of_cameras: str = "world",
+    downscale: int = 1,
 ) -> Path:
     """Render ``run``'s field from every camera of a transforms file (bent by ``deformation`` at each of ``frames``,
     default all: one frame into ``out``, several into ``out/frame_NNNN``) into PNGs named like the file's frames,
     atomically; several frames are kept as a partial output when interrupted, and ``resume`` continues one;
-    ``record`` goes to ``out/config.yml``."""
+    ``record`` goes to ``out/config.yml``. ``frame_of_cameras`` and ``downscale``: see :func:`run_cameras`."""
     from nerfedit_plugin.bending.scene_deformation import load_deformation
     from nerfedit_plugin.config import write_config
     from nerfedit_plugin.data.datasets import read_transforms
@@ -90,6 +99,7 @@ def render_run(
     field = run.field()
     transforms = read_transforms(cameras, "test" if Path(cameras).is_dir() else None)
     names = [p.with_suffix(".png").name for p in transforms.image_paths]
+    views = run_cameras(run, transforms.cameras, frame_of_cameras, downscale)
     bent = load_deformation(deformation) if deformation is not None else None
     config = default_render_config(field)
     frames = list(range(bent.n_frames if bent is not None else 1)) if frames is None else list(frames)
@@ -100,13 +110,21 @@ def render_run(
             folder = stage if len(frames) == 1 else stage / f"frame_{f:04d}"
             if folder != stage and folder.is_dir():  # finished before an interruption (--resume)
                 continue
-            images = render_views(field, transforms.cameras, config, deformation=bent, frame=f, supersample=supersample)
+            images = render_views(field, views, config, deformation=bent, frame=f, supersample=supersample)
             write_images(images, names, folder)
             fault_point("render.frame")
         if record is not None:
             write_config(stage / CONFIG, record)
         clear_partial(stage)
     return Path(out)
+
+
+def run_cameras(run, cameras, frame_of_cameras: str, downscale: int):
+    """``cameras`` in the run's world frame (``frame_of_cameras == "capture"``: mapped by ``run.source_transform()``),
+    downscaled by ``downscale``."""
+    if frame_of_cameras == "capture":
+        cameras = cameras.transformed(run.source_transform())
+    return cameras.downscale(downscale) if downscale > 1 else cameras
 
 
 def render(args: RenderArgs) -> None:
@@ -128,7 +146,7 @@ def render(args: RenderArgs) -> None:
             raise NerfEditError("--video and --executor ray: for animations (--trajectory fixed, orbit or path)")
         out = render_run(
             run, args.cameras, args.deformation, frames, args.out, args.overwrite, args.supersample,
-            recorded(args), args.resume,
+            recorded(args), args.resume, args.frame_of_cameras, args.downscale,
         )  # fmt: skip
         console.print(f"renders → {out}")
         return
@@ -137,6 +155,7 @@ def render(args: RenderArgs) -> None:
     cameras, path_fps = trajectory(
         args.trajectory, frames, cameras=args.cameras, view=args.view, size=args.size, scene_bbox=box, up=up
     )
+    cameras = run_cameras(run, cameras, "world" if orbit else args.frame_of_cameras, args.downscale)
     job = RenderJob(run.path, args.deformation, args.supersample, torch.get_num_threads())
     key = {
         "run": str(run.path.resolve()),

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Literal
 
 from nerfedit_plugin.cli.common import Command, print_table, recorded
+from nerfedit_plugin.errors import check_option
 from nerfedit_plugin.registry import FIELDS
 
 
@@ -14,7 +16,8 @@ class TrainArgs:
     """Train a field backend on a dataset (or, for the mesh field, load a vertex-coloured mesh) into a run folder."""
 
     data: Path
-    """Dataset folder or transforms JSON (Blender or nerfstudio); a mesh file for --field mesh."""
+    """Dataset folder or transforms JSON (Blender or nerfstudio), or a COLMAP workspace (images/ + sparse/0/); a mesh
+    file for --field mesh."""
     out: Path
     """Run folder to write (field.pt, config.yml, log.json; mesh.ply for the mesh field)."""
     field: str = "nerf"
@@ -23,6 +26,16 @@ class TrainArgs:
     """torch device (default: cuda when present, else cpu)."""
     overwrite: bool = False
     """Replace an existing run folder (only after the new one is complete)."""
+    downscale: int = 1
+    """Train on the images downscaled by this integer factor (block averaging; cached with undistorted frames)."""
+    scene_box: tuple[float, float, float, float, float, float] | None = None
+    """The field's box, min x y z then max x y z (default: the dataset's aabb, a capture's foreground box from its
+    sparse points or camera frustums); the mesh is extracted inside it."""
+    frame: Literal["world", "capture"] = "world"
+    """Frame of --scene-box: the run's (normalised) world, or the capture's own coordinates (e.g. COLMAP's)."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "downscale", self.downscale, self.downscale >= 1, "a positive integer")
 
 
 def train(args: TrainArgs) -> None:
@@ -36,6 +49,9 @@ def train(args: TrainArgs) -> None:
         overwrite=args.overwrite,
         device=args.device,
         record=recorded(args),
+        downscale=args.downscale,
+        scene_box=args.scene_box,
+        box_frame=args.frame,
     )
     evals = log.get("eval") or []
     print_table(

@@ -89,6 +89,17 @@ class Cameras:
             self.height,
         )
 
+    def transformed(self, similarity) -> Cameras:
+        """The cameras moved by a similarity ``x ↦ sRx + b`` ``(4,4)`` (scale ``s = ∛det``): positions mapped, axes
+        rotated by ``R``; the images they see are those of the scene moved by it (intrinsics unchanged)."""
+        matrix = torch.as_tensor(np.asarray(similarity, dtype=np.float64))
+        scale = float(torch.linalg.det(matrix[:3, :3])) ** (1.0 / 3.0)
+        c2w = self.c2w.double().cpu()
+        moved = c2w.clone()
+        moved[:, :3, :3] = matrix[:3, :3] @ c2w[:, :3, :3] / scale
+        moved[:, :3, 3] = c2w[:, :3, 3] @ matrix[:3, :3].T + matrix[:3, 3]
+        return Cameras(moved.float().to(self.device), self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+
     def downscale(self, factor: int) -> Cameras:
         """Cameras of images downscaled by averaging ``factor``×``factor`` pixel blocks: intrinsics ÷ factor,
         size ``floor(size / factor)`` (a partial last block row/column is cropped; that does not move ``c``)."""
@@ -233,3 +244,25 @@ def orbit_poses(
     directions = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=-1)
     center = np.asarray(center, dtype=np.float64)
     return look_at(torch.from_numpy(center + radius * directions), torch.from_numpy(center))
+
+
+OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
+"""Right-multiplying a camera-to-world matrix by this flips its y and z axes: OpenCV/COLMAP cameras (looking down
++z, +y down the image) ↔ OpenGL cameras (looking down −z, +y up). It is its own inverse."""
+
+
+def opengl_from_world_to_camera(world_to_camera: np.ndarray) -> np.ndarray:
+    """OpenGL camera-to-world ``(...,4,4)`` of OpenCV world-to-camera poses ``[R | t]`` ``(...,3,4)`` or
+    ``(...,4,4)`` (COLMAP's ``cam_from_world``): ``c2w = [Rᵀ | −Rᵀt] · diag(1, −1, −1, 1)``, float64."""
+    rotation, translation = world_to_camera[..., :3, :3], world_to_camera[..., :3, 3]
+    c2w = np.zeros(world_to_camera.shape[:-2] + (4, 4))
+    c2w[..., :3, :3] = np.swapaxes(rotation, -1, -2)
+    c2w[..., :3, 3] = -np.einsum("...ji,...j->...i", rotation, translation)
+    c2w[..., 3, 3] = 1.0
+    return c2w @ OPENCV_TO_OPENGL
+
+
+def world_to_camera_from_opengl(c2w: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`opengl_from_world_to_camera`: OpenCV world-to-camera ``(...,4,4)`` of OpenGL
+    camera-to-world poses."""
+    return np.linalg.inv(np.asarray(c2w, dtype=np.float64) @ OPENCV_TO_OPENGL)

@@ -18,12 +18,22 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from nerfedit_plugin.data.bounds import estimate_scene_bbox
 from nerfedit_plugin.data.cameras import Cameras
+from nerfedit_plugin.data.colmap import ColmapModel, is_workspace, read_colmap, sparse_folder
+from nerfedit_plugin.data.image_cache import cached
+from nerfedit_plugin.data.lens import DISTORTION, Lens
+from nerfedit_plugin.data.normalization import apply, box_bounds, normalize_capture
+from nerfedit_plugin.data.undistort import undistort_image
 from nerfedit_plugin.errors import NerfEditError
 
 SPLITS = ("train", "val", "test")
-DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 PINHOLE_MODELS = ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE")
+"""nerfstudio ``camera_model`` values read (OPENCV with ``k1, k2, k3, p1, p2``: the images are undistorted on load)."""
+CAPTURE_KEYS = ("applied_transform", "ply_file_path")
+"""A nerfstudio file with one of these keys is a capture (``ns-process-data`` output): it is normalised."""
+EVAL_INTERVAL = 8
+"""nerfstudio's ``eval_interval``: every 8th frame of a file without split keys is held out."""
 
 
 # ---- images ----------------------------------------------------------------------------------------------------
@@ -98,13 +108,19 @@ def block_mean(image: np.ndarray, factor: int) -> np.ndarray:
 # ---- transforms files ------------------------------------------------------------------------------------------
 @dataclass
 class Transforms:
-    """The cameras of a transforms file and the image file of each frame (which need not exist)."""
+    """The cameras of a transforms file (or COLMAP workspace) and the image file of each frame (which need not
+    exist); for captures also each frame's ``lens`` (its distortion, undone on load) and ``mask`` file."""
 
     cameras: Cameras
     image_paths: list[Path]
     file: Path
     meta: dict = field(repr=False)
-    """The parsed JSON (extra keys such as ``aabb`` or ``supersample``)."""
+    """The parsed JSON (extra keys such as ``aabb`` or ``supersample``); a normalised capture's ``source_transform``
+    and ``aabb`` (the foreground box) in the world frame."""
+    lenses: list[Lens | None] = field(default_factory=list, repr=False)
+    """Per frame: the lens when it has distortion, else None (empty: no frame has any)."""
+    mask_paths: list[Path | None] = field(default_factory=list, repr=False)
+    """Per frame: its mask image (0 = ignore the pixel) or None (empty: no frame has one)."""
 
 
 def transforms_file(path: str | os.PathLike, split: str | None = None) -> Path:
@@ -119,14 +135,20 @@ def transforms_file(path: str | os.PathLike, split: str | None = None) -> Path:
     for candidate in candidates:
         if candidate.is_file():
             return candidate
+    if is_workspace(path):
+        return sparse_folder(path)
     raise NerfEditError(f"{path}: no {' or '.join(c.name for c in candidates)} in this folder")
 
 
 def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transforms:
-    """Parse a Blender or nerfstudio transforms file (or dataset folder); ``split`` selects nerfstudio frames."""
+    """Parse a Blender or nerfstudio transforms file, or a COLMAP workspace (dataset folder); ``split`` selects
+    frames. Captures (COLMAP workspaces, nerfstudio files with ``applied_transform`` or ``ply_file_path``) are
+    normalised (:mod:`nerfedit_plugin.data.normalization`)."""
     if split is not None and split not in SPLITS:
         raise NerfEditError(f"split: expected one of {', '.join(SPLITS)}, got {split!r}")
     file = transforms_file(path, split)
+    if file.is_dir():
+        return _colmap_transforms(read_colmap(file.parent.parent if file.name == "0" else file.parent), split)
     try:
         meta = json.loads(file.read_text())
     except (OSError, ValueError) as exc:  # ValueError: bad UTF-8, bad JSON, an integer of > 4300 digits
@@ -137,14 +159,14 @@ def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transf
     if not isinstance(frames, list) or not frames:
         raise NerfEditError(f"{file}: key 'frames': " + ("missing" if frames is None else "expected a non-empty list"))
     _check_camera_model(file, meta, "")
-    indices = _split_indices(file, meta, frames, split)
-    c2w, intrinsics, paths, size = [], [], [], None
-    for i in indices:
-        frame, where = frames[i], f"frames[{i}]"
+    c2w, intrinsics, lenses, paths, masks, size = [], [], [], [], [], None
+    for i, frame in enumerate(frames):
+        where = f"frames[{i}]"
         if not isinstance(frame, dict):
             raise NerfEditError(f"{file}: {where}: expected an object")
         _check_camera_model(file, frame, f"{where}.")
         paths.append(_image_path(file, frame, where))
+        masks.append(_mask_path(file, frame, where))
         c2w.append(_matrix(file, frame, where))
         frame_size = _size(file, meta, frame, where, paths[-1])
         if size is not None and frame_size != size:
@@ -154,12 +176,67 @@ def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transf
             )
         size = frame_size
         intrinsics.append(_intrinsics(file, meta, frame, where, *size))
+        lenses.append(_lens(file, meta, frame, where, intrinsics[-1]))
     fx, fy, cx, cy = torch.tensor(intrinsics, dtype=torch.float32).T
     cameras = Cameras(torch.from_numpy(np.stack(c2w)), fx, fy, cx, cy, *size)
-    return Transforms(cameras, paths, file, meta)
+    if any(key in meta for key in CAPTURE_KEYS):
+        applied = _applied_transform(file, meta)
+        points = _ply_points(file, meta)
+        cameras = cameras.transformed(np.linalg.inv(applied))  # to the capture frame (COLMAP's)
+        points = None if points is None else apply(np.linalg.inv(applied), points)
+        meta = _normalized(file, meta, cameras, points, applied)
+        cameras = cameras.transformed(meta["source_transform"])
+    chosen = _split_indices(file, meta, frames, split)
+    return _select(Transforms(cameras, paths, file, meta, lenses, masks), chosen)
 
 
-def _split_indices(file: Path, meta: dict, frames: list, split: str | None) -> list[int]:
+def is_capture(transforms: Transforms) -> bool:
+    """Whether ``transforms`` came from a capture that was normalised (a COLMAP model, an ``ns-process-data`` file)."""
+    return transforms.file.is_dir() or any(key in transforms.meta for key in CAPTURE_KEYS)
+
+
+def _colmap_transforms(model: ColmapModel, split: str | None) -> Transforms:
+    """The normalised :class:`Transforms` of a COLMAP model (one image size; frames sorted by name)."""
+    sizes = set(model.sizes)
+    if len(sizes) > 1:
+        raise NerfEditError(f"{model.sparse}: cameras of different image sizes {sorted(sizes)} are not supported")
+    fx, fy, cx, cy = torch.tensor([(n.fx, n.fy, n.cx, n.cy) for n in model.lenses], dtype=torch.float32).T
+    cameras = Cameras(torch.from_numpy(model.c2w), fx, fy, cx, cy, *model.sizes[0])
+    meta = _normalized(model.sparse, {}, cameras, model.points, np.eye(4))
+    frames = [{"file_path": p.name} for p in model.image_paths]
+    transforms = Transforms(cameras.transformed(meta["source_transform"]), model.image_paths, model.sparse, meta)
+    transforms.lenses = [n if n.distorted else None for n in model.lenses]
+    return _select(transforms, _split_indices(model.sparse, meta, frames, split, interval=True))
+
+
+def _normalized(file: Path, meta: dict, cameras: Cameras, points: np.ndarray | None, applied: np.ndarray) -> dict:
+    """``meta`` with the capture's ``source_transform`` (capture → world) and ``aabb`` (the foreground box, unless
+    the file gives one, which is in the file's frame: ``applied`` takes the capture frame there)."""
+    source, box = normalize_capture(cameras, points)
+    if "aabb" in meta:
+        box = box_bounds(source @ np.linalg.inv(applied), _aabb(file, meta).numpy())
+    return {**meta, "source_transform": source.tolist(), "aabb": box.tolist()}
+
+
+def _select(transforms: Transforms, chosen: list[int]) -> Transforms:
+    def pick(items: list) -> list:
+        return [items[i] for i in chosen] if any(item is not None for item in items) else []
+
+    return Transforms(
+        transforms.cameras[chosen],
+        [transforms.image_paths[i] for i in chosen],
+        transforms.file,
+        transforms.meta,
+        pick(transforms.lenses),
+        pick(transforms.mask_paths),
+    )
+
+
+def _split_indices(file: Path, meta: dict, frames: list, split: str | None, interval: bool | None = None) -> list[int]:
+    """The frames of ``split``: listed in ``{split}_filenames``, or with ``"split": split``; else, for a file of all
+    splits (``transforms.json``, a COLMAP model: ``interval``) of at least :data:`EVAL_INTERVAL` frames, nerfstudio's
+    held-out split — every :data:`EVAL_INTERVAL`-th frame is ``val`` and ``test``, the others ``train``; else (a
+    per-split file, a handful of frames) every split is all frames."""
     if split is None:
         return list(range(len(frames)))
     listed = meta.get(f"{split}_filenames")
@@ -170,6 +247,9 @@ def _split_indices(file: Path, meta: dict, frames: list, split: str | None) -> l
         chosen = [i for i, f in enumerate(frames) if os.path.normpath(str(_get(f, "file_path"))) in wanted]
     elif any(isinstance(f, dict) and "split" in f for f in frames):
         chosen = [i for i, f in enumerate(frames) if isinstance(f, dict) and f.get("split") == split]
+    elif (interval if interval is not None else file.name == "transforms.json") and len(frames) >= EVAL_INTERVAL:
+        held_out = split != "train"
+        chosen = [i for i in range(len(frames)) if (i % EVAL_INTERVAL == 0) == held_out]
     else:
         return list(range(len(frames)))
     if not chosen:
@@ -184,10 +264,82 @@ def _get(frame, key):
 def _check_camera_model(file: Path, obj: dict, where: str) -> None:
     model = obj.get("camera_model")
     if model is not None and model not in PINHOLE_MODELS:
-        raise NerfEditError(f"{file}: {where}camera_model: {model!r} is not supported (pinhole cameras only)")
-    for key in DISTORTION_KEYS:
-        if key in obj and _number(file, obj, key, where) != 0.0:
-            raise NerfEditError(f"{file}: {where}{key}: lens distortion is not supported (undistort the images)")
+        raise NerfEditError(
+            f"{file}: {where}camera_model: {model!r} is not supported ({', '.join(PINHOLE_MODELS)}; fisheye and "
+            "panoramic cameras are not)"
+        )
+
+
+def _lens(file: Path, meta: dict, frame: dict, where: str, intrinsics: tuple[float, ...]) -> Lens | None:
+    """The frame's lens when it has distortion (per-frame keys override the global ones), else None. Distortion
+    needs nerfstudio intrinsics (``fl_x``) and a camera model that has it; ``k4`` (fisheye) is refused."""
+    values = {k: _lookup(file, meta, frame, k, where) or 0.0 for k in (*DISTORTION, "k4")}
+    given = [k for k, v in values.items() if v != 0.0]
+    if not given:
+        return None
+    key = f"{where}.{given[0]}" if given[0] in frame else given[0]
+    if _lookup(file, meta, frame, "fl_x", where) is None:
+        raise NerfEditError(
+            f"{file}: {key}: lens distortion is not supported with camera_angle_x (Blender intrinsics): give fl_x, "
+            "fl_y, cx, cy and camera_model OPENCV (nerfstudio)"
+        )
+    model = frame.get("camera_model", meta.get("camera_model", "OPENCV"))
+    if model != "OPENCV":
+        raise NerfEditError(f"{file}: {key}: lens distortion with camera_model {model!r}; distorted lenses are OPENCV")
+    if values.pop("k4"):
+        raise NerfEditError(f"{file}: {where}: k4 is a fisheye coefficient (OPENCV_FISHEYE), which is not supported")
+    return Lens(*intrinsics, **values)
+
+
+def _mask_path(file: Path, frame: dict, where: str) -> Path | None:
+    value = frame.get("mask_path")
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise NerfEditError(f"{file}: {where}.mask_path: expected a path, got {value!r}")
+    return file.parent / value
+
+
+def _applied_transform(file: Path, meta: dict) -> np.ndarray:
+    """(4,4) nerfstudio's ``applied_transform`` (3×4: COLMAP's frame → the file's), the identity when absent."""
+    if "applied_transform" not in meta:
+        return np.eye(4)
+    try:
+        matrix = np.asarray(meta["applied_transform"], dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        matrix = np.zeros(0)
+    if matrix.shape in ((3, 4), (4, 4)):
+        matrix = np.vstack([matrix[:3], [0.0, 0.0, 0.0, 1.0]])
+        if np.isfinite(matrix).all() and np.allclose(matrix[:3, :3].T @ matrix[:3, :3], np.eye(3), atol=1e-4):
+            return matrix
+    raise NerfEditError(f"{file}: applied_transform: expected a 3x4 rigid transform (rotation and translation)")
+
+
+def _ply_points(file: Path, meta: dict) -> np.ndarray | None:
+    """The sparse points of ``ply_file_path`` (in the file's frame), or None."""
+    value = meta.get("ply_file_path")
+    if value is None:
+        return None
+    path = file.parent / str(value)
+    if not path.is_file():
+        raise NerfEditError(f"{file}: ply_file_path: {path} not found")
+    import trimesh
+
+    try:
+        points = np.asarray(trimesh.load(path, process=False).vertices, dtype=np.float64)
+    except Exception as exc:  # trimesh raises many types for a bad file
+        raise NerfEditError(f"{path}: not a readable PLY point cloud ({exc})"[:300]) from exc
+    return points[np.isfinite(points).all(1)]
+
+
+def _aabb(file: Path, meta: dict) -> torch.Tensor:
+    try:
+        bbox = torch.tensor(meta["aabb"], dtype=torch.float32)
+    except (TypeError, ValueError) as exc:
+        raise NerfEditError(f"{file}: aabb: expected [[x,y,z],[x,y,z]] ({exc})") from exc
+    if bbox.shape != (2, 3) or not (bbox[0] < bbox[1]).all():
+        raise NerfEditError(f"{file}: aabb: expected [[min x,y,z],[max x,y,z]] with min < max")
+    return bbox
 
 
 def _number(file: Path, obj: dict, key: str, where: str) -> float:
@@ -279,6 +431,13 @@ def _intrinsics(file: Path, meta: dict, frame: dict, where: str, w: int, h: int)
         if not 0.0 < angle < math.pi:
             raise NerfEditError(f"{file}: camera_angle_x: expected radians in (0, pi), got {angle}")
         fx = 0.5 * w / math.tan(0.5 * angle)
+    elif (angle := _lookup(file, meta, frame, "camera_angle_x", where)) is not None:
+        blender = 0.5 * w / math.tan(0.5 * angle) if 0.0 < angle < math.pi else math.nan
+        if not abs(blender - fx) <= 1e-3 * fx:
+            raise NerfEditError(
+                f"{file}: {where}: fl_x={fx} (nerfstudio) and camera_angle_x={angle} (Blender, fl_x={blender:.6g} at "
+                f"w={w}) disagree: give one intrinsics convention"
+            )
     fy = _lookup(file, meta, frame, "fl_y", where)
     if fy is None:
         angle_y = _lookup(file, meta, frame, "camera_angle_y", where)
@@ -363,12 +522,22 @@ class Dataset:
     background: tuple[float, float, float]
     scene_bbox: torch.Tensor
     alpha: torch.Tensor | None = None
+    mask: torch.Tensor | None = None
+    """``(C,H,W)`` bool: the pixels to train on (a capture's masks, pixels that undistortion left without a source);
+    None: all of them."""
 
     def __len__(self) -> int:
         return len(self.cameras)
 
+    @property
+    def opaque(self) -> bool:
+        """Every pixel is covered: no alpha channel, or alpha ≡ 1 (a capture or a scene, not an object on a
+        transparent background)."""
+        return self.alpha is None or bool((self.alpha >= 1.0).all())
+
     def to(self, device: torch.device | str) -> Dataset:
         alpha = None if self.alpha is None else self.alpha.to(device)
+        mask = None if self.mask is None else self.mask.to(device)
         return Dataset(
             self.images.to(device),
             self.cameras.to(device),
@@ -377,30 +546,17 @@ class Dataset:
             self.background,
             self.scene_bbox.to(device),
             alpha,
+            mask,
         )
-
-
-def estimate_scene_bbox(cameras: Cameras) -> torch.Tensor:
-    """Cube around the point nearest (least squares) to all optical axes, of half-size ``min_i D_i sin θ_i``
-    (``D_i`` = camera distance, ``θ_i`` = half the smaller field of view): a ball every camera sees whole."""
-    c2w = cameras.c2w.double().cpu()
-    origins, axes = c2w[:, :3, 3], -c2w[:, :3, 2]
-    projector = torch.eye(3, dtype=torch.float64) - axes[:, :, None] * axes[:, None, :]
-    lhs, rhs = projector.sum(0), (projector @ origins[:, :, None]).sum(0)[:, 0]
-    center = torch.linalg.lstsq(lhs, rhs).solution if len(cameras) > 1 else origins[0] + axes[0]
-    half_fov = torch.minimum(
-        torch.atan(0.5 * cameras.width / cameras.fx.double().cpu()),
-        torch.atan(0.5 * cameras.height / cameras.fy.double().cpu()),
-    )
-    radius = (torch.linalg.norm(origins - center, dim=1) * torch.sin(half_fov)).min()
-    return torch.stack([center - radius, center + radius]).float().to(cameras.device)
 
 
 def load_dataset(
     path: str | os.PathLike, split: str = "train", background=(1.0, 1.0, 1.0), downscale: int = 1
 ) -> Dataset:
-    """Load a Blender or nerfstudio dataset (folder or transforms file) — see the module docstring — with images
-    composited over ``background`` and downscaled by an integer ``downscale`` (block averaging)."""
+    """Load a Blender or nerfstudio dataset (folder or transforms file) or a COLMAP workspace — see the module
+    docstring — with images composited over ``background``, downscaled by an integer ``downscale`` (block averaging)
+    and undistorted (:mod:`nerfedit_plugin.data.undistort`); frames that need either are cached
+    (:mod:`nerfedit_plugin.data.image_cache`)."""
     background = _background(background)
     if isinstance(downscale, bool) or int(downscale) != downscale or downscale < 1:
         raise NerfEditError(f"downscale: expected a positive integer, got {downscale!r}")
@@ -409,30 +565,26 @@ def load_dataset(
     cameras = transforms.cameras
     if cameras.width < downscale or cameras.height < downscale:
         raise NerfEditError(f"downscale: factor {downscale} exceeds the image size {cameras.width}x{cameras.height}")
-    images, alphas, any_alpha = [], [], False
-    for i, image_path in enumerate(transforms.image_paths):
+    lenses = transforms.lenses or [None] * len(cameras)
+    masks = transforms.mask_paths or [None] * len(cameras)
+    images, alphas, valid, any_alpha = [], [], [], False
+    for i, (image_path, lens, mask_path) in enumerate(zip(transforms.image_paths, lenses, masks)):
         if not image_path.is_file():
             raise NerfEditError(f"{transforms.file}: frames[{i}].file_path: image {image_path} not found")
-        rgb, alpha = read_image(image_path)
-        if rgb.shape[:2] != (cameras.height, cameras.width):
-            raise NerfEditError(
-                f"{image_path}: image is {rgb.shape[1]}x{rgb.shape[0]} but {transforms.file.name} says "
-                f"w={cameras.width}, h={cameras.height}"
-            )
-        any_alpha |= alpha is not None
-        images.append(block_mean(composite(rgb, alpha, background), downscale))
-        alphas.append(block_mean(np.ones(rgb.shape[:2], np.float32) if alpha is None else alpha, downscale))
+
+        def load(image_path=image_path, lens=lens, mask_path=mask_path) -> dict:
+            return _frame_arrays(transforms, image_path, lens, mask_path, background, downscale)
+
+        if lens is None and downscale == 1:
+            arrays = load()
+        else:
+            arrays = cached([image_path, mask_path], (lens, downscale, background), load)
+        any_alpha |= bool(arrays["has_alpha"])
+        images.append(arrays["rgb"])
+        alphas.append(arrays["alpha"])
+        valid.append(arrays["valid"])
     cameras = cameras.downscale(downscale)
-    bbox = transforms.meta.get("aabb")
-    if bbox is not None:
-        try:
-            bbox = torch.tensor(bbox, dtype=torch.float32)
-        except (TypeError, ValueError) as exc:
-            raise NerfEditError(f"{transforms.file}: aabb: expected [[x,y,z],[x,y,z]] ({exc})") from exc
-        if bbox.shape != (2, 3) or not (bbox[0] < bbox[1]).all():
-            raise NerfEditError(f"{transforms.file}: aabb: expected [[min x,y,z],[max x,y,z]] with min < max")
-    else:
-        bbox = estimate_scene_bbox(cameras)
+    bbox = _aabb(transforms.file, transforms.meta) if "aabb" in transforms.meta else estimate_scene_bbox(cameras)
     return Dataset(
         images=torch.from_numpy(np.stack(images)),
         cameras=cameras,
@@ -441,7 +593,44 @@ def load_dataset(
         background=background,
         scene_bbox=bbox,
         alpha=torch.from_numpy(np.stack(alphas)) if any_alpha else None,
+        mask=None if all(v.all() for v in valid) else torch.from_numpy(np.stack(valid)),
     )
+
+
+def _frame_arrays(
+    transforms: Transforms, image_path: Path, lens: Lens | None, mask_path: Path | None, background, downscale: int
+) -> dict:
+    """One frame as loaded: ``rgb`` composited, ``alpha`` (ones without a channel; ``has_alpha``), ``valid`` (the
+    mask, and the pixels undistortion could fill), downscaled, then undistorted at the final resolution."""
+    cameras = transforms.cameras
+    rgb, alpha = read_image(image_path)
+    if rgb.shape[:2] != (cameras.height, cameras.width):
+        raise NerfEditError(
+            f"{image_path}: image is {rgb.shape[1]}x{rgb.shape[0]} but {transforms.file.name} says "
+            f"w={cameras.width}, h={cameras.height}"
+        )
+    valid = np.ones(rgb.shape[:2], np.float32)
+    if mask_path is not None:
+        if not mask_path.is_file():
+            raise NerfEditError(f"{transforms.file}: mask {mask_path} of {image_path.name} not found")
+        mask, _ = read_image(mask_path)
+        if mask.shape[:2] != rgb.shape[:2]:
+            raise NerfEditError(
+                f"{mask_path}: mask is {mask.shape[1]}x{mask.shape[0]} but its image {image_path.name} is "
+                f"{rgb.shape[1]}x{rgb.shape[0]}"
+            )
+        valid = (mask[..., 0] > 0.5).astype(np.float32)
+    has_alpha = alpha is not None
+    rgb = block_mean(composite(rgb, alpha, background), downscale)
+    alpha = block_mean(np.ones(valid.shape, np.float32) if alpha is None else alpha, downscale)
+    valid = block_mean(valid, downscale) >= 1.0 - 1e-6  # a pixel is trained on when its whole block is
+    if lens is not None:
+        lens = lens.scaled(downscale)
+        rgb, filled = undistort_image(rgb, lens)
+        alpha = undistort_image(alpha, lens)[0]
+        valid = undistort_image(valid.astype(np.float32), lens)[0] >= 1.0 - 1e-6
+        valid &= filled
+    return {"rgb": rgb, "alpha": alpha, "valid": valid, "has_alpha": np.array(has_alpha)}
 
 
 def _background(background) -> tuple[float, float, float]:

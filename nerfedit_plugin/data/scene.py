@@ -271,10 +271,21 @@ def _check_overlaps(names: Sequence[str], meshes: Sequence[SurfaceMesh]) -> None
                 raise NerfEditError(f"positions: the boxes of objects {names[j]!r} and {names[i]!r} overlap")
 
 
-def floor_mesh(half_size: float = FLOOR_HALF_SIZE, seed: int = 0) -> SurfaceMesh:
+TEXTURES = ("checker", "noise")
+"""Floor and background textures: ``checker`` (soft cells, smooth tints), or ``noise`` — every vertex an independent
+uniform random colour blended with the smooth tint, corners at every pixel scale: what SIFT (structure from motion)
+needs everywhere in a frame."""
+
+
+def _noisy(colors: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The ``noise`` texture: ``colors (V,3)`` blended half and half with uniform random colours in [0.1, 0.9]."""
+    return 0.5 * colors + 0.5 * rng.uniform(0.1, 0.9, size=colors.shape)
+
+
+def floor_mesh(half_size: float = FLOOR_HALF_SIZE, seed: int = 0, texture: str = "checker") -> SurfaceMesh:
     """The floor: a square grid at z = 0 (spacing :data:`FLOOR_STEP`, faces up), coloured with a soft checker of
     cells :data:`FLOOR_CELL` whose light cells get a random brightness each, times smooth, muted colour noise —
-    corners everywhere and no period, quantised to 8 bits."""
+    corners everywhere and no period — or with the ``noise`` texture (:data:`TEXTURES`); quantised to 8 bits."""
     rng = np.random.default_rng([seed, 1])
     steps = int(round(2 * half_size / FLOOR_STEP))
     axis = np.linspace(-half_size, half_size, steps + 1)
@@ -290,13 +301,15 @@ def floor_mesh(half_size: float = FLOOR_HALF_SIZE, seed: int = 0) -> SurfaceMesh
     cell = np.clip(np.floor((points + half_size) / FLOOR_CELL).astype(np.int64), 0, n_cells - 1)
     brightness = rng.uniform(0.55, 1.0, size=(n_cells, n_cells))[cell[:, 0], cell[:, 1]]
     colors = base * (0.35 + 0.65 * checker * brightness)[:, None]
+    if texture == "noise":
+        colors = _noisy(base, rng)
     return SurfaceMesh(np.stack([x, y, np.zeros_like(x)], axis=1), faces, np.round(colors * 255.0) / 255.0)
 
 
-def background_mesh(radius: float = BACKGROUND_RADIUS, seed: int = 0) -> SurfaceMesh:
+def background_mesh(radius: float = BACKGROUND_RADIUS, seed: int = 0, texture: str = "checker") -> SurfaceMesh:
     """The background: an icosphere of ``radius`` around the origin, faces turned inwards, coloured with smooth noise
-    of the direction shaded by soft-edged blobs (a thresholded, finer second noise) — no checker, unlike the floor;
-    quantised to 8 bits."""
+    of the direction shaded by soft-edged blobs (a thresholded, finer second noise) — no checker, unlike the floor —
+    or with the ``noise`` texture (:data:`TEXTURES`); quantised to 8 bits."""
     import trimesh
 
     sphere = trimesh.creation.icosphere(subdivisions=BACKGROUND_SUBDIVISIONS, radius=1.0)
@@ -304,21 +317,24 @@ def background_mesh(radius: float = BACKGROUND_RADIUS, seed: int = 0) -> Surface
     rng = np.random.default_rng([seed, 2])
     tint = np.clip(0.55 + 0.3 * smooth_noise(directions, rng, cycles=(1.0, 2.5)), 0.0, 1.0)
     blobs = 0.5 + 0.5 * np.tanh(4.0 * smooth_noise(directions, rng, cycles=(2.0, 5.0))[:, 0])
-    colors = tint * (0.45 + 0.55 * blobs)[:, None]
+    colors = _noisy(tint, rng) if texture == "noise" else tint * (0.45 + 0.55 * blobs)[:, None]
     faces = np.asarray(sphere.faces)[:, ::-1]
     return SurfaceMesh(radius * directions, faces, np.round(colors * 255.0) / 255.0)
 
 
-def build_scene(config: GenerateConfig) -> Scene:
+def build_scene(config: GenerateConfig, texture: str = "checker") -> Scene:
     """The scene of ``config.objects`` (see :class:`GenerateConfig`'s scene options): the placed objects, then the
-    floor and the background when enabled, as one mesh with its description."""
+    floor and the background when enabled (textured by ``texture``, :data:`TEXTURES`), as one mesh with its
+    description."""
     _check_scene(config)
+    if texture not in TEXTURES:
+        raise NerfEditError(f"texture: expected one of {', '.join(TEXTURES)}, got {texture!r}")
     names = _unique_names(config.objects)
     placed = _objects(config)
     _check_overlaps(names, [mesh for mesh, _ in placed])
     pieces = [mesh for mesh, _ in placed]
-    pieces += [floor_mesh(seed=config.seed)] if config.floor else []
-    pieces += [background_mesh(seed=config.seed)] if config.background else []
+    pieces += [floor_mesh(seed=config.seed, texture=texture)] if config.floor else []
+    pieces += [background_mesh(seed=config.seed, texture=texture)] if config.background else []
     mesh, ranges = _concatenate(pieces)
     objects = tuple(
         SceneObject(name, str(source), to_scene, vertices, faces, np.stack([m.vertices.min(0), m.vertices.max(0)]))
@@ -340,12 +356,13 @@ def scene_poses(kind: str, n: int, radius: float, center, seed: int) -> torch.Te
     return orbit_poses(n, radius, center, seed=seed, **CAMERAS[kind])
 
 
-def generate_scene(config: GenerateConfig) -> Path:
-    """Build the scene of ``config.objects`` and write it as a Blender dataset, atomically: what
-    :func:`nerfedit_plugin.data.synthetic.generate_dataset` writes (``aabb`` = the foreground box; no
-    ``source_transform``, which is per object) plus ``scene.json``. The cameras look at the foreground box's centre
-    from ``radius`` (default: the box's bounding ball fills the field of view, 50° unless given). Returns the folder."""
-    scene = build_scene(config)
+def generate_scene(config: GenerateConfig, texture: str = "checker") -> Path:
+    """Build the scene of ``config.objects`` (floor and background textured by ``texture``) and write it as a
+    Blender dataset, atomically: what :func:`nerfedit_plugin.data.synthetic.generate_dataset` writes (``aabb`` = the
+    foreground box; no ``source_transform``, which is per object) plus ``scene.json``. The cameras look at the
+    foreground box's centre from ``radius`` (default: the box's bounding ball fills the field of view, 50° unless
+    given). Returns the folder."""
+    scene = build_scene(config, texture)
     centre = scene.aabb.mean(0)
     ball = float(np.linalg.norm(scene.aabb[1] - scene.aabb[0])) / 2
     both_unset = config.fov_degrees is None and config.radius is None

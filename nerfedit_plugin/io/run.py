@@ -6,6 +6,8 @@
 ``RUN_DIR/log.json``    training log (loss/PSNR per step, held-out PSNR-vs-time), when the backend trains
 ``RUN_DIR/mesh.ply``    the surface mesh: written by :func:`extract_mesh` (``nerfedit extract``); a mesh field's
                         run has it at once (the field's own mesh, in its vertex order)
+``RUN_DIR/dataparser_transforms.json``  a normalised capture's capture-to-world similarity, nerfstudio's layout:
+                        ``{"transform": 3×4 [R | t], "scale": s}``, ``x_world = s (R x + t)``
 
 A run is written atomically (never half a run on disk); an extracted ``mesh.ply`` is added atomically afterwards.
 Training checkpoints into the run's staging folder every ``checkpoint_every_seconds``, marked partial; an
@@ -29,7 +31,8 @@ import numpy as np
 import torch
 
 from nerfedit_plugin.config import read_config, to_plain, write_config
-from nerfedit_plugin.data.datasets import Dataset, load_dataset, read_transforms, transforms_file
+from nerfedit_plugin.data.datasets import Dataset, is_capture, load_dataset, read_transforms, transforms_file
+from nerfedit_plugin.data.normalization import apply, box_bounds
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -41,6 +44,9 @@ from nerfedit_plugin.registry import FIELDS, Registry, discover
 from nerfedit_plugin.training.trainer import checkpoints
 
 CONFIG, CHECKPOINT, LOG, MESH = "config.yml", "field.pt", "log.json", "mesh.ply"
+DATAPARSER = "dataparser_transforms.json"
+CAPTURE_MESH = "mesh_capture.ply"
+"""``nerfedit extract --frame capture``: the mesh in the capture's coordinates."""
 
 
 def default_device() -> torch.device:
@@ -91,10 +97,13 @@ class Run:
         return float(torch.linalg.norm(centers - center, dim=1).mean())
 
     def source_transform(self) -> np.ndarray:
-        """(4,4) float64: the similarity taking the coordinates of the mesh the data was generated from to the run's
-        (the dataset's ``source_transform``, written by ``nerfedit generate``); the identity for data that nerfedit
-        did not transform (a dataset without the record, a mesh file other than a generated dataset's ``mesh.ply``).
-        Edit specs with ``frame: source`` use it."""
+        """(4,4) float64: the similarity taking the coordinates of the mesh the data was generated from, or of the
+        capture, to the run's (a capture's normalisation recorded in ``dataparser_transforms.json``, else the
+        dataset's ``source_transform``, written by ``nerfedit generate``); the identity for data that nerfedit did not
+        transform (a dataset without the record, a mesh file other than a generated dataset's ``mesh.ply``). Edit
+        specs with ``frame: source`` and ``--frame capture`` use it."""
+        if (self.path / DATAPARSER).is_file():
+            return read_dataparser_transforms(self.path / DATAPARSER)
         data = self.data
         if _is_mesh_file(data):
             if data.name != MESH or not (data.parent / "transforms_train.json").is_file():
@@ -107,6 +116,25 @@ class Run:
         if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
             raise NerfEditError(f"{self.data}: source_transform: expected a 4×4 matrix of numbers")
         return matrix
+
+
+def dataparser_transforms(source_transform: np.ndarray) -> dict:
+    """nerfstudio's ``dataparser_transforms.json`` of a similarity ``x ↦ sRx + b``: ``{"transform": [R | b/s],
+    "scale": s}``."""
+    scale = float(np.cbrt(np.linalg.det(source_transform[:3, :3])))
+    return {"transform": (source_transform[:3] / scale).tolist(), "scale": scale}
+
+
+def read_dataparser_transforms(file: Path) -> np.ndarray:
+    """(4,4) the similarity of a ``dataparser_transforms.json`` (the inverse of :func:`dataparser_transforms`)."""
+    try:
+        record = json.loads(file.read_text())
+        matrix = np.vstack([float(record["scale"]) * np.asarray(record["transform"], dtype=np.float64), [0, 0, 0, 1]])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise NerfEditError(f"{file}: expected {{'transform': 3x4, 'scale': s}} ({exc})") from exc
+    if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
+        raise NerfEditError(f"{file}: expected {{'transform': 3x4, 'scale': s}}")
+    return matrix
 
 
 def open_run(path: str | os.PathLike) -> Run:
@@ -132,14 +160,27 @@ def _is_mesh_file(data: Path) -> bool:
     return data.is_file() and data.suffix != ".json"
 
 
-def _eval_split(data: Path) -> Dataset | None:
+def _eval_split(data: Path, downscale: int) -> Dataset | None:
     for split in ("test", "val"):
         try:
             transforms_file(data, split)
         except NerfEditError:
             continue
-        return load_dataset(data, split)
+        return load_dataset(data, split, downscale=downscale)
     return None
+
+
+def _scene_box(train: Dataset, scene_box, frame: str, source_transform: np.ndarray) -> torch.Tensor:
+    """The field's box: ``scene_box`` ([min, max], in the run's ``world`` frame or the ``capture``'s: then the bounds
+    of its corners mapped to the world) when given, else the dataset's (a capture's foreground box)."""
+    if scene_box is None:
+        return train.scene_bbox
+    box = np.asarray(scene_box, dtype=np.float64).reshape(2, 3)
+    if not (np.isfinite(box).all() and (box[0] < box[1]).all()):
+        raise NerfEditError(f"scene_box: expected [min x, y, z, max x, y, z] with min < max, got {box.tolist()}")
+    if frame == "capture":
+        box = box_bounds(source_transform, box)
+    return torch.tensor(box, dtype=torch.float32, device=train.scene_bbox.device)
 
 
 def train_run(
@@ -152,10 +193,16 @@ def train_run(
     device: torch.device | str | None = None,
     registry: Registry | None = None,
     record: Any = None,
+    downscale: int = 1,
+    scene_box=None,
+    box_frame: str = "world",
 ) -> tuple[Run, dict]:
-    """Build (``data`` = mesh file, mesh backends) or train (``data`` = dataset folder) the field ``backend`` with
-    ``config`` and write the run folder ``out`` atomically, with ``mesh.ply`` for mesh backends. ``record`` (the
-    command line's args) goes to config.yml under ``command``. Returns the run and the training log."""
+    """Build (``data`` = mesh file, mesh backends) or train (``data`` = dataset folder, transforms file or COLMAP
+    workspace) the field ``backend`` with ``config`` and write the run folder ``out`` atomically, with ``mesh.ply``
+    for mesh backends and ``dataparser_transforms.json`` for normalised captures. Images are downscaled by
+    ``downscale``; ``scene_box`` (6 numbers, in ``box_frame``: ``world`` or ``capture``) overrides the dataset's box.
+    ``record`` (the command line's args) goes to config.yml under ``command``. Returns the run and the training
+    log."""
     registry = discover() if registry is None else registry
     if registry.config_class(FIELDS, backend) is not type(config):
         raise NerfEditError(f"field: the config {type(config).__name__} is not the {backend!r} backend's")
@@ -175,9 +222,13 @@ def train_run(
             field, log = target.from_mesh(SurfaceMesh.load(data), config).to(device), {}
             field.extract_mesh().save(stage / MESH)
         else:
-            train = load_dataset(data, "train").to(device)
-            evaluation = _eval_split(data)
-            field = config.setup(scene_bbox=train.scene_bbox).to(device)
+            train = load_dataset(data, "train", downscale=downscale).to(device)
+            evaluation = _eval_split(data, downscale)
+            transforms = read_transforms(data, "train")
+            source = np.asarray(transforms.meta.get("source_transform", np.eye(4)), dtype=np.float64)
+            field = config.setup(scene_bbox=_scene_box(train, scene_box, box_frame, source)).to(device)
+            if is_capture(transforms):
+                (stage / DATAPARSER).write_text(json.dumps(dataparser_transforms(source), indent=2))
 
             def checkpoint(field: Field, progress: dict) -> None:  # kept as a partial run if interrupted
                 mark_partial(stage, progress)
@@ -223,3 +274,16 @@ def extract_mesh(
     with atomic_path(run.mesh_path) as tmp:
         mesh.save(tmp)
     return run.mesh_path
+
+
+def export_capture_mesh(run: Run, overwrite: bool = False) -> Path:
+    """The run's mesh mapped back to the capture's coordinates (by the inverse of :meth:`Run.source_transform`) into
+    ``RUN_DIR/mesh_capture.ply``, atomically: e.g. to open it next to the COLMAP points."""
+    path = run.path / CAPTURE_MESH
+    if path.exists() and not overwrite:
+        raise NerfEditError(f"{path}: exists (pass --overwrite to export again)")
+    mesh = run.mesh()
+    mesh = mesh.with_vertices(apply(np.linalg.inv(run.source_transform()), mesh.vertices))
+    with atomic_path(path) as tmp:
+        mesh.save(tmp)
+    return path

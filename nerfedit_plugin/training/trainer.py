@@ -88,14 +88,17 @@ def checkpoints(callback: Callable[[Any, dict], None]) -> Iterator[None]:
 
 @torch.no_grad()
 def evaluate(field: Any, dataset: Any, render_config: Any, views: int | None = None) -> float:
-    """PSNR over all pixels of the first ``views`` images of ``dataset`` rendered by ``field``."""
+    """PSNR over the pixels (those of the dataset's ``mask`` when it has one) of the first ``views`` images of
+    ``dataset`` rendered by ``field``."""
     from nerfedit_plugin.render.renderer import render_image
 
     count = len(dataset) if views is None else min(views, len(dataset))
+    mask = getattr(dataset, "mask", None)
     squared = 0.0
     for i in range(count):
         image = render_image(field, dataset.cameras, i, render_config)
-        squared += float(((image - dataset.images[i].to(image.device)) ** 2).mean())
+        error = (image - dataset.images[i].to(image.device)) ** 2
+        squared += float(error.mean() if mask is None else error[mask[i].to(image.device)].mean())
     return psnr_from_mse(squared / count)
 
 
@@ -203,12 +206,15 @@ def _clock(kind: str) -> Callable[[], float]:
 
 
 def _ray_pool(dataset: Any, margin: int) -> torch.Tensor:
-    """Flat indices of the pixels rays are drawn from (see ``TrainerConfig.foreground_margin``)."""
-    if margin < 0 or dataset.alpha is None:
-        return torch.arange(dataset.images[..., 0].numel())
-    covered = (dataset.alpha > 0).float()[:, None]
-    grown = torch.nn.functional.max_pool2d(covered, 2 * margin + 1, stride=1, padding=margin)
-    return grown.reshape(-1).nonzero()[:, 0]
+    """Flat indices of the pixels rays are drawn from (see ``TrainerConfig.foreground_margin``), never outside the
+    dataset's ``mask`` (when it has one: masked-out pixels are not trained on)."""
+    keep = torch.ones_like(dataset.images[..., 0], dtype=torch.bool)
+    if margin >= 0 and dataset.alpha is not None:
+        covered = (dataset.alpha > 0).float()[:, None]
+        keep = torch.nn.functional.max_pool2d(covered, 2 * margin + 1, stride=1, padding=margin)[:, 0] > 0
+    if getattr(dataset, "mask", None) is not None:
+        keep &= dataset.mask.to(keep.device)
+    return keep.reshape(-1).nonzero()[:, 0]
 
 
 def _adam(groups: Iterable[dict], previous: torch.optim.Optimizer | None = None) -> torch.optim.Optimizer:

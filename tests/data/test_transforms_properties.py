@@ -54,7 +54,7 @@ BAD_VALUES = {
     "frames": [[], {}, None, "frames", 1],
     "frame": [None, 1, "x", []],
     "camera_model": ["OPENCV_FISHEYE", "EQUIRECTANGULAR", 3],
-    "distortion": [0.1, -0.01, "0", None, math.nan, HUGE],
+    "distortion": ["0", None, math.nan, HUGE],
     "top": [[], None, "x", 1],
 }
 # Keys whose deletion breaks a good file (w/h are read from the image when missing, so they are not).
