@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Literal
 
 from nerfedit_plugin.cli.common import Command, console, print_table, recorded
 from nerfedit_plugin.edit.lift import LiftConfig, LiftMethod
@@ -47,6 +48,9 @@ class EditArgs:
     both deformations (render it on the same run)."""
     base_frame: int | None = None
     """With --base: the frame of a sequence whose deformed mesh is the rest (default: its last)."""
+    frame: Literal["world", "capture"] = "world"
+    """capture (with --run): also write each deformed_mesh*.ply into OUT/capture/, in the capture's own coordinates
+    (a COLMAP or nerfstudio capture's frame; see `nerfedit extract --frame capture`)."""
     overwrite: bool = False
     """Replace an existing output folder (only after the new one is complete)."""
 
@@ -61,6 +65,8 @@ def edit(args: EditArgs) -> None:
         raise NerfEditError(f"--field {args.field}: the run {run.path} holds a {run.backend!r} field")
     if run is None and (args.field is not None or args.render_cameras is not None):
         raise NerfEditError("--field and --render-cameras need --run RUN_DIR (the trained field to render)")
+    if args.frame == "capture" and run is None:
+        raise NerfEditError("--frame capture: needs --run RUN_DIR (the run records the capture's frame)")
     if args.base is None and args.base_frame is not None:
         raise NerfEditError("--base-frame: needs --base EDIT_DIR")
     base = Base.of(args.base, args.base_frame) if args.base is not None else None
@@ -93,9 +99,32 @@ def edit(args: EditArgs) -> None:
         _print_scene(result.out, report)
     else:
         _print_single(result.out, report)
+    if args.frame == "capture":
+        for path in export_to_capture(run, result.out):
+            console.print(f"capture frame → {path}")
     if args.render_cameras is not None:
         out = render_run(run, args.render_cameras, result.out / "deformation.npz", None, result.out / "renders", False)
         console.print(f"renders → {out}")
+
+
+def export_to_capture(run, folder: Path) -> list[Path]:
+    """Each ``deformed_mesh*.ply`` of an edit ``folder`` mapped by the inverse of the run's source transform (the
+    capture's frame) into ``folder/capture/`` under the same name, each written atomically."""
+    import numpy as np
+
+    from nerfedit_plugin.data.normalization import apply
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.io.atomic import atomic_path
+
+    to_capture, written = np.linalg.inv(run.source_transform()), []
+    (folder / "capture").mkdir(exist_ok=True)
+    for path in sorted(folder.glob("deformed_mesh*.ply")):
+        mesh = SurfaceMesh.load(path)
+        target = folder / "capture" / path.name
+        with atomic_path(target) as tmp:
+            mesh.with_vertices(apply(to_capture, mesh.vertices)).save(tmp)
+        written.append(target)
+    return written
 
 
 COLUMNS = ("residual max (×bbox)", "residual rms", "inverted tets", "folded faces", "iterations", "seconds")

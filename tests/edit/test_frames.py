@@ -97,3 +97,24 @@ def test_the_bunny_config_edits_the_runs_bunny_as_it_edits_the_sample(tmp_path):
     assert np.abs(moved["run"] - rest).max() > 0.02  # the ears moved
     expected = moved["sample"] @ matrix[:3, :3].T + matrix[:3, 3]
     np.testing.assert_allclose(moved["run"], expected, atol=1e-6 * run.mesh().bbox_diagonal)
+
+
+def test_edit_exports_its_deformed_meshes_in_the_capture_frame(capsule_flow, proxy_cache, tmp_path):
+    """``nerfedit edit --run RUN --frame capture`` also writes every deformed mesh in the capture's (here: the
+    generator's source) coordinates: the run's source transform maps them back onto the edit's own meshes."""
+    from nerfedit_plugin.cli.app import main
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.io.run import open_run
+
+    argv = ["edit", "--run", capsule_flow / "run", "--edit", capsule_flow / "edit.json", "--out", tmp_path / "edit"]
+    assert main([str(a) for a in [*argv, "--cache-dir", proxy_cache, "--frame", "capture"]]) == 0
+    matrix = open_run(capsule_flow / "run").source_transform()
+    assert not np.allclose(matrix, np.eye(4))  # the generator normalised the capsule
+    names = sorted(p.name for p in (tmp_path / "edit").glob("deformed_mesh*.ply"))
+    assert len(names) == 3 and sorted(p.name for p in (tmp_path / "edit" / "capture").iterdir()) == names
+    for name in names:
+        world = SurfaceMesh.load(tmp_path / "edit" / name).vertices
+        capture = SurfaceMesh.load(tmp_path / "edit" / "capture" / name).vertices
+        np.testing.assert_allclose(capture @ matrix[:3, :3].T + matrix[:3, 3], world, atol=1e-5)
+    assert main(["edit", "--mesh", "sample:bunny", "--edit", str(capsule_flow / "edit.json"), "--out",
+                 str(tmp_path / "e2"), "--frame", "capture"]) == 2  # fmt: skip
