@@ -1,9 +1,12 @@
-"""``nerfedit view``: a mesh and an edit in Open3D (a window, or an offscreen screenshot)."""
+"""``nerfedit view``: the interactive editor (``--mesh`` or ``--run``), or an edit in Open3D (``--edit``: a window, or
+an offscreen ``--screenshot``)."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -15,10 +18,13 @@ from nerfedit_plugin.errors import NerfEditError, check_option
 
 @dataclasses.dataclass
 class ViewArgs:
-    """Show a mesh and an edit (deformed mesh, tet proxies, cages, handles) with Open3D; headless: --screenshot."""
+    """Edit a mesh or a run's field interactively (--mesh / --run: pick handles, drag, render, save a spec), or show
+    an edit (--edit: deformed mesh, tet proxies, cages, handles) with Open3D; headless: --screenshot."""
 
     mesh: str | None = None
     """Rest mesh, or sample:NAME; default: the mesh the edit folder's config names."""
+    run: Path | None = None
+    """Run folder (`nerfedit train`, then `nerfedit extract`): edit its mesh, render its field (R)."""
     edit: Path | None = None
     """Edit folder (`nerfedit edit --out`)."""
     frame: int = 0
@@ -36,7 +42,15 @@ class ViewArgs:
     """World up direction of the view; default: the run's when the mesh is a run's (its dataset's cameras: z for
     datasets of `nerfedit generate`), else y (the samples' convention)."""
 
+    spec: Path = Path("edit.json")
+    """Editor: where Save (S) writes the edit spec (selection files beside it)."""
+    frames: int = 1
+    """Editor: frames of the edit (> 1: an animation from the rest pose, shown with the frame slider)."""
+    script: Path | None = None
+    """Editor: a JSON list of steps to run without a person (see nerfedit_plugin/viewer/editor.py)."""
+
     def __post_init__(self) -> None:
+        check_option(self, "frames", self.frames, self.frames >= 1, ">= 1")
         check_option(self, "frame", self.frame, self.frame >= 0, ">= 0")
         check_option(self, "width", self.width, self.width >= 1, "a positive number of pixels")
         check_option(self, "height", self.height, self.height >= 1, "a positive number of pixels")
@@ -87,6 +101,11 @@ def view(args: ViewArgs) -> None:
     from nerfedit_plugin.io.run import open_run
     from nerfedit_plugin.viewer.layers import edit_geometries, screenshot, show
 
+    if args.edit is None and args.screenshot is None:
+        edit(args)
+        return
+    if args.run is not None:
+        raise NerfEditError("view: --run opens the editor; to look at an edit give --edit EDIT_DIR")
     mesh, run = args.mesh, None
     if mesh is None and args.edit is not None:
         mesh, run_path = edit_source(args.edit)
@@ -101,6 +120,37 @@ def view(args: ViewArgs) -> None:
         console.print(f"screenshot → {screenshot(geometries, args.screenshot, args.width, args.height, up)}")
     else:
         show(geometries)
+
+
+def edit(args: ViewArgs) -> None:
+    """Open the editor on ``--mesh`` or ``--run`` (the run's mesh; its field renders the edit)."""
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.registry import DEFORMERS, discover
+    from nerfedit_plugin.viewer.editor_state import EditorState
+
+    if (args.mesh is None) == (args.run is None):
+        raise NerfEditError("view: give --mesh MESH or --run RUN to edit (or --edit EDIT_DIR to look at an edit)")
+    run = open_run(args.run) if args.run is not None else None
+    rest = run.mesh() if run is not None else SurfaceMesh.load(args.mesh)
+    script = None
+    if args.script is not None:
+        try:
+            script = json.loads(args.script.read_text())
+        except (OSError, ValueError) as exc:
+            raise NerfEditError(f"{args.script}: cannot read the script ({exc})") from exc
+        if not isinstance(script, list) or not all(isinstance(step, dict) and len(step) >= 1 for step in script):
+            raise NerfEditError(f'{args.script}: expected a JSON list of steps ({{"pick": [...]}}, ...)')
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise NerfEditError("view: the editor needs a display (set DISPLAY, or run it under xvfb-run)")
+    from nerfedit_plugin.viewer.editor import run_editor
+    from nerfedit_plugin.viewer.field_preview import FieldPreview
+
+    deformer = discover(DEFORMERS).config_class(DEFORMERS, "arap")()
+    state = EditorState(rest, deformer, frames=args.frames)
+    up = args.up or (run_up(run) if run is not None else None) or Y_UP
+    preview = FieldPreview(run, rest) if run is not None else None
+    run_editor(state, preview=preview, spec_path=args.spec, up=up, script=script)
 
 
 COMMAND = Command("view", ViewArgs, view)

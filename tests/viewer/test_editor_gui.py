@@ -1,0 +1,62 @@
+"""The editor window under a virtual display, driven by a script: pick vertices, move a handle, save; the screenshot
+after the move differs from the rest pose's where the handle moved, and the saved spec reproduces the editor."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import skimage.io
+
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+MESH = "sample:bone"
+XVFB = shutil.which("xvfb-run")
+
+
+@pytest.mark.skipif(XVFB is None, reason="no xvfb-run (apt-get install xvfb libvulkan1 mesa-vulkan-drivers)")
+def test_a_scripted_edit_moves_the_view_and_saves_a_reproducible_spec(tmp_path):
+    bone = SurfaceMesh.load(MESH)
+    axis = int(np.argmax(np.ptp(bone.vertices, axis=0)))
+    x = bone.vertices[:, axis]
+    fixed = np.flatnonzero(x <= np.quantile(x, 0.1)).tolist()
+    moving = np.flatnonzero(x >= np.quantile(x, 0.9)).tolist()
+    shift = [0.0, 0.0, 0.0]
+    shift[(axis + 1) % 3] = 0.15 * bone.bbox_diagonal
+    steps = [
+        {"screenshot": str(tmp_path / "rest.png")},
+        {"click": [2, 2]},  # empty space: a message, the editor goes on
+        {"pick": fixed},
+        {"mark": "fixed"},
+        {"pick": moving},
+        {"mark": "moving"},
+        {"translate": shift},
+        {"drag": [5, 0]},
+        {"save": str(tmp_path / "edit.json")},
+        {"screenshot": str(tmp_path / "moved.png")},
+        {"save": "/proc/nerfedit-editor/edit.json"},  # a read-only place: a message, nothing written
+        {"quit": True},
+    ]
+    (tmp_path / "steps.json").write_text(json.dumps(steps))
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    result = subprocess.run(
+        [XVFB, "-a", "-s", "-screen 0 1280x800x24", sys.executable, "-m", "nerfedit_plugin.cli.app", "view"]
+        + ["--mesh", MESH, "--script", str(tmp_path / "steps.json")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=240,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "pick: no surface under the cursor" in result.stderr
+    assert "save: cannot write into /proc/nerfedit-editor" in result.stderr
+    rest = skimage.io.imread(tmp_path / "rest.png")[..., :3].astype(int)
+    moved = skimage.io.imread(tmp_path / "moved.png")[..., :3].astype(int)
+    changed = np.abs(rest - moved).sum(-1) > 30
+    assert changed.mean() > 0.002, "the move left the view unchanged"
+    spec = json.loads((tmp_path / "edit.json").read_text())
+    assert spec["handles"][1]["select"] == {"file": "edit.handle1.selection.json"}
+    assert spec["handles"][1]["transform"]["translate"][(axis + 1) % 3] > 0.1 * bone.bbox_diagonal
