@@ -1,9 +1,12 @@
 """The editor's interactive loop (docs/benchmarks.md, "The editor").
 
-1. Handle drag on ``sample:bunny`` (28k vertices; bottom fixed, ears moving): 30 moves of a drag, each the handle
-   move + a warm-started preview solve (:data:`~nerfedit_plugin.viewer.editor_state.PREVIEW_ITERATIONS`) + the
-   deformed mesh rebuilt as the scene's geometry (the window's ``add_geometry`` and frame time are not in it). Target
-   ≤ 100 ms per move. Reports the iterations per move and the energy gap of the last preview to the converged solve.
+1. Handle drag on ``sample:bunny`` (28k vertices; bottom fixed, ears moving), per backend: 30 moves of a drag, each
+   the handle move + the preview (arap: a warm-started solve of
+   :data:`~nerfedit_plugin.viewer.backends.PREVIEW_ITERATIONS`; cage: the bound coordinates; skeleton: the bound
+   skinning weights) + the deformed mesh's positions set in the scene's tensor mesh (normals are recomputed on
+   release; the window's ``add_geometry`` and frame time are not in it). Target ≤ 100 ms per move. Reports the split
+   (solve vs geometry update), the ARAP iterations per move, and the settle on release: the energy gap of the last
+   preview to the converged solve, closed, and its time.
 2. ``--run RUN``: the "render" action (lift into the proxy + render at 128 px) from a view of the run's mesh, cold
    (proxy from the cache or built, lift factored, kernels compiled) and warm. Target ≤ 2 s warm.
 
@@ -13,54 +16,86 @@ Usage: ``python bench/bench_editor.py [--run RUN]``.
 from __future__ import annotations
 
 import argparse
+import os
 import time
+from pathlib import Path
 
 import numpy as np
 
-from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.registry import DEFORMERS, discover
-from nerfedit_plugin.viewer.editor import _mesh
+from nerfedit_plugin.viewer.backends import editing_backend
+from nerfedit_plugin.viewer.editor import _mesh, _set_positions
 from nerfedit_plugin.viewer.editor_state import EditorState
 from nerfedit_plugin.viewer.picking import View
 
 MOVES = 30
+SKELETON = Path(__file__).resolve().parent.parent / "configs" / "skeleton" / "bunny.json"
 
 
-def drag() -> None:
-    rest = SurfaceMesh.load("sample:bunny")
-    state = EditorState(rest, discover(DEFORMERS).config_class(DEFORMERS, "arap")())
-    y = rest.vertices[:, 1]
-    state.select(np.flatnonzero(y <= np.quantile(y, 0.05)))
-    state.mark(True)
-    state.select(np.flatnonzero(y >= np.quantile(y, 0.97)))
+def _grab(state: EditorState, name: str) -> None:
+    """Bunny handles: bottom fixed and ears moving (arap), the cage's top moving (cage), the head joint (skeleton)."""
+    points = state.backend.points
+    y = points[:, 1]
+    if name == "skeleton":
+        state.select([state.backend.skeleton.names.index("neck")])
+    else:
+        if name == "arap":
+            state.select(np.flatnonzero(y <= np.quantile(y, 0.05)))
+            state.mark(True)
+        state.select(np.flatnonzero(y >= np.quantile(y, 0.97 if name == "arap" else 0.8)))
     state.mark(False)
+
+
+def drag(name: str) -> None:
+    rest = SurfaceMesh.load("sample:bunny")
     start = time.perf_counter()
-    state.preview()  # factorises for these handles (once per handle set)
-    print(f"bunny {rest.n_vertices} vertices: factorisation + first preview {time.perf_counter() - start:.2f} s")
-    times, iterations = [], []
+    state = EditorState(editing_backend(name, rest, {"skeleton": SKELETON} if name == "skeleton" else {}))
+    _grab(state, name)
+    state.preview()  # arap: factorises for these handles (once per handle set)
+    print(
+        f"{name}: bunny {rest.n_vertices} vertices, bind / factorisation + first preview "
+        f"{time.perf_counter() - start:.2f} s"
+    )
+    shown = _mesh(state.deformed, rest.faces, (0.7, 0.7, 0.7))
+    solve, update, iterations = [], [], []
     step = np.array([0.004, 0.002, 0.0]) * rest.bbox_diagonal
     for _ in range(MOVES):
         start = time.perf_counter()
-        state.translate(step, record=False)
+        if name == "skeleton":
+            state.rotate([0.0, 0.0, 1.0], 1.0, record=False)
+        else:
+            state.translate(step, record=False)
         vertices = state.preview()
-        _mesh(vertices, rest.faces, (0.7, 0.7, 0.7))
-        times.append(time.perf_counter() - start)
-        iterations.append(state.last_result.iterations)
-    indices, targets = state.targets()
-    solver = ArapSolver(rest.vertices, rest.faces, fixed=indices)
-    converged = solver.solve(targets[0], initial=state.deformed)
-    preview_energy = solver.energy(state.deformed)
-    gap = (preview_energy - converged.energies[-1]) / converged.energies[-1]
-    times_ms = 1e3 * np.array(times)
+        middle = time.perf_counter()
+        _set_positions(shown, vertices, normals=False)
+        update.append(time.perf_counter() - middle)
+        solve.append(middle - start)
+        iterations.append(state.backend.last_iterations)
+    total = 1e3 * (np.array(solve) + np.array(update))
+    start = time.perf_counter()
+    _set_positions(shown, vertices, normals=True)
+    normals = time.perf_counter() - start
+    start = time.perf_counter()
+    _mesh(vertices, rest.faces, (0.7, 0.7, 0.7))
+    rebuild = time.perf_counter() - start
+    counted = f"; {np.mean(iterations):.1f} iterations per move" if name == "arap" else ""
     print(
-        f"drag: {MOVES} moves, per move median {np.median(times_ms):.0f} ms, p90 {np.percentile(times_ms, 90):.0f} ms, "
-        f"max {times_ms.max():.0f} ms; {np.mean(iterations):.1f} iterations per move; energy of the last preview "
-        f"{gap:+.1%} above the converged solve ({converged.iterations} more iterations)"
+        f"  drag: {MOVES} moves, per move median {np.median(total):.0f} ms, p90 {np.percentile(total, 90):.0f} ms, "
+        f"max {total.max():.0f} ms (move + preview median {1e3 * np.median(solve):.1f} ms, positions update "
+        f"{1e3 * np.median(update):.2f} ms; were it rebuilt with normals {1e3 * rebuild:.1f} ms, normals alone "
+        f"{1e3 * normals:.1f} ms){counted}"
     )
     start = time.perf_counter()
+    settled = state.converge()
+    if settled is not None:
+        _, before, after, count = settled
+        print(
+            f"  settle on release: energy of the last preview {(before - after) / after:+.1%} above the converged "
+            f"solve, closed in {count} iterations, {time.perf_counter() - start:.2f} s"
+        )
+    start = time.perf_counter()
     state.settle()
-    print(f"settle (the exact `nerfedit edit` solve, bind included): {time.perf_counter() - start:.2f} s")
+    print(f"  settle (the exact `nerfedit edit` solve, bind included): {time.perf_counter() - start:.2f} s")
 
 
 def render(run_path: str) -> None:
@@ -102,6 +137,8 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", help="a trained run with mesh.ply (render action)")
     args = parser.parse_args()
-    drag()
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    for name in ("arap", "cage", "skeleton"):
+        drag(name)
     if args.run:
         render(args.run)

@@ -43,7 +43,14 @@ class ViewArgs:
     datasets of `nerfedit generate`), else y (the samples' convention)."""
 
     spec: Path = Path("edit.json")
-    """Editor: where Save (S) writes the edit spec (selection files beside it)."""
+    """Editor: where Save (S) writes the edit spec (selection files beside it); when it exists, its handles (and the
+    deformer's files) are loaded to keep editing."""
+    deformer: str = "arap"
+    """Editor: arap (handles on mesh vertices), cage (on the cage's vertices) or skeleton (joints of --skeleton)."""
+    cage: Path | None = None
+    """Editor, --deformer cage: the cage mesh; default: the automatic cage ("cage": "auto")."""
+    skeleton: Path | None = None
+    """Editor, --deformer skeleton: the skeleton (JSON joints or BVH) whose joints are posed."""
     frames: int = 1
     """Editor: frames of the edit (> 1: an animation from the rest pose, shown with the frame slider)."""
     script: Path | None = None
@@ -126,7 +133,7 @@ def edit(args: ViewArgs) -> None:
     """Open the editor on ``--mesh`` or ``--run`` (the run's mesh; its field renders the edit)."""
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
     from nerfedit_plugin.io.run import open_run
-    from nerfedit_plugin.registry import DEFORMERS, discover
+    from nerfedit_plugin.viewer.backends import editing_backend
     from nerfedit_plugin.viewer.editor_state import EditorState
 
     if (args.mesh is None) == (args.run is None):
@@ -146,8 +153,13 @@ def edit(args: ViewArgs) -> None:
     from nerfedit_plugin.viewer.editor import run_editor
     from nerfedit_plugin.viewer.field_preview import FieldPreview
 
-    deformer = discover(DEFORMERS).config_class(DEFORMERS, "arap")()
-    state = EditorState(rest, deformer, frames=args.frames)
+    keys = {key: path.resolve() for key, path in (("cage", args.cage), ("skeleton", args.skeleton)) if path}
+    if args.spec.is_file():
+        source_to_world = run.source_transform() if run is not None else None
+        state = EditorState.open(args.deformer, rest, args.spec, keys, source_to_world)
+        console.print(f"{args.spec}: {len(state.handles)} handle(s) loaded")
+    else:
+        state = EditorState(editing_backend(args.deformer, rest, keys), frames=args.frames)
     up = args.up or (run_up(run) if run is not None else None) or Y_UP
     preview = FieldPreview(run, rest) if run is not None else None
     run_editor(state, preview=preview, spec_path=args.spec, up=up, script=script)

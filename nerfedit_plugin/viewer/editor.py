@@ -1,20 +1,25 @@
 """The interactive editor window (``nerfedit view --mesh MESH`` / ``--run RUN``): Open3D ``gui`` with a
 ``SceneWidget``, a side panel and a status line, driving an :class:`~nerfedit_plugin.viewer.editor_state.EditorState`.
 
-Mouse (in the 3-D view): drag orbits; **Ctrl+click** picks the vertex under the cursor, **Ctrl+drag** selects the
-visible vertices in a box, **Alt+drag** brushes them; **Shift+drag** moves the active moving handle in the view
-plane (each move re-solves the surface, warm-started). Keys: **F** / **M** mark the selection fixed / moving, **G**
-grows it by the panel's geodesic radius, **Esc** clears it, arrows nudge the active handle in the view plane and
-**PgUp/PgDn** along the view direction, **Q/E** turn it ±5° about the view axis, **+/−** scale it ×1.05, **Z / Y**
-undo / redo, **Enter** settles (the exact solve ``nerfedit edit`` runs), **R** renders the field (with ``--run``),
-**S** saves the spec. Every error goes to the status line and stderr; the editor keeps running.
+What is picked depends on the deformer (``--deformer``): mesh vertices (arap), the cage's vertices (cage, drawn as
+the cage layer) or skeleton joints (skeleton, the skeleton layer). Mouse (in the 3-D view): drag orbits;
+**Ctrl+click** picks the vertex under the cursor, **Ctrl+drag** selects the visible vertices in a box, **Alt+drag**
+brushes them; **Shift+drag** moves the active moving handle in the view plane (each move re-poses the mesh: ARAP
+warm-started a few iterations, cage and skeleton exactly); when the drag ends the ARAP solve is finished in a
+worker thread (settle on release; the status line reports the energy gap closed). Keys: **F** / **M** mark the
+selection fixed / moving, **G** grows it by the panel's geodesic radius, **Esc** clears it, arrows nudge the active
+handle in the view plane and **PgUp/PgDn** along the view direction, **Q/E** turn it ±5° about the view axis,
+**+/−** scale it ×1.05, **Z / Y** undo / redo, **Enter** settles (the exact solve ``nerfedit edit`` runs), **R**
+renders the field (with ``--run``), **S** saves the spec. Every error goes to the status line and stderr; the editor
+keeps running.
 
 A script (``nerfedit view --script STEPS.json``) runs the same actions without a person, one step per frame: a list
 of ``{"pick": [i, …]}``, ``{"click": [x, y]}``, ``{"box": [x0, y0, x1, y1]}``, ``{"brush": [[x, y], …], "radius":
 px}``, ``{"grow": r}``, ``{"mark": "fixed" | "moving"}``, ``{"drag": [dx, dy]}``, ``{"translate": [x, y, z]}``,
 ``{"rotate": {"axis": […], "degrees": d, "pivot": […]}}``, ``{"scale": k}``, ``{"undo": true}``, ``{"redo": true}``,
 ``{"settle": true}``, ``{"render": true}``, ``{"save": "edit.json"}``, ``{"screenshot": "view.png"}``,
-``{"layer": {"rest": true, …}}``, ``{"frame": i}``, ``{"quit": true}`` (pixels in the 3-D view's coordinates).
+``{"layer": {"rest": true, …}}``, ``{"frame": i}``, ``{"quit": true}`` (pixels in the 3-D view's coordinates); each
+move is settled (on release) before the next step.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -41,7 +47,12 @@ from nerfedit_plugin.viewer.picking import Picker, View
 
 EDITOR_LAYERS = ("rest", "deformed", "handles", "proxy", "deformed-proxy")
 SHOWN = {"rest": False, "deformed": True, "handles": True, "proxy": False, "deformed-proxy": False}
-COLORS = {"fixed": (0.15, 0.35, 0.95), "moving": (0.95, 0.2, 0.15), "selection": (0.95, 0.8, 0.1)}
+COLORS = {
+    "fixed": (0.15, 0.35, 0.95),
+    "moving": (0.95, 0.2, 0.15),
+    "selection": (0.95, 0.8, 0.1),
+    "controls": (0.1, 0.6, 0.3),
+}
 BRUSH_RADIUS = 12.0
 """Brush radius in pixels."""
 SCRIPT_WARMUP_TICKS = 20
@@ -79,6 +90,10 @@ class Editor:
         self._pending = np.zeros(2)  # handle drag in pixels not yet solved
         self._flush_posted = False
         self._proxy: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # rest, deformed, tets of the last render
+        self._shown_mesh: o3d.t.geometry.TriangleMesh | None = None  # the deformed mesh in the scene (moves update it)
+        layer = state.backend.layer
+        self.layers = EDITOR_LAYERS + ((layer,) if layer else ())
+        self.shown.update({layer: True} if layer else {})
         self.app = gui.Application.instance
         self.window = self.app.create_window("nerfedit editor", width, height)
         self.scene = gui.SceneWidget()
@@ -102,7 +117,7 @@ class Editor:
         panel = gui.Vert(0.25 * em, gui.Margins(0.5 * em, 0.5 * em, 0.5 * em, 0.5 * em))
         panel.add_child(gui.Label("Layers"))
         self.checks = {}
-        for name in EDITOR_LAYERS:
+        for name in self.layers:
             box = gui.Checkbox(name)
             box.checked = self.shown[name]
             box.set_on_checked(lambda on, name=name: self._act(lambda: self.set_layer(name, on)))
@@ -182,7 +197,9 @@ class Editor:
         self.panel.frame = gui.Rect(rect.get_right() - width, rect.y, width, rect.height)
 
     def _reset_camera(self) -> None:
-        box = self.scene.scene.bounding_box
+        """Frame the rest mesh (the same view whether an opened spec has moved it or not)."""
+        rest = self.state.mesh.vertices
+        box = o3d.geometry.AxisAlignedBoundingBox(rest.min(0), rest.max(0))
         centre = box.get_center()
         self.scene.setup_camera(60.0, box, centre)
         front = _rotate_y_to(self.up / np.linalg.norm(self.up), DEFAULT_FRONT)
@@ -232,7 +249,8 @@ class Editor:
         )
 
     def picker(self) -> Picker:
-        return Picker(self.state.deformed, self.state.mesh.faces)
+        """Picks the control points as shown (the deformed mesh's vertices, the posed cage or joints)."""
+        return Picker(self.state.posed_points, self.state.backend.faces)
 
     def click(self, x: float, y: float) -> str:
         found = self.picker().click(self.view(), x, y)
@@ -279,7 +297,7 @@ class Editor:
 
     def set_layer(self, name: str, on: bool) -> str:
         if name not in self.shown:
-            raise NerfEditError(f"layer: unknown layer {name!r} (choose from {', '.join(EDITOR_LAYERS)})")
+            raise NerfEditError(f"layer: unknown layer {name!r} (choose from {', '.join(self.layers)})")
         self.shown[name] = self.checks[name].checked = bool(on)
         if name in ("proxy", "deformed-proxy") and on and self._proxy is None:
             return f"{name}: rendered once the field is rendered (R, with --run)"
@@ -329,20 +347,19 @@ class Editor:
     def _draw_all(self) -> None:
         start = time.perf_counter()
         scene, state = self.scene.scene, self.state
-        for name in ("rest", "deformed", "handles", "selection", "proxy", "deformed-proxy"):
+        for name in ("rest", "deformed", "handles", "selection", "proxy", "deformed-proxy", "controls"):
             if scene.has_geometry(name):
                 scene.remove_geometry(name)
         lit = _material("defaultLit")
         if self.shown["rest"]:
             scene.add_geometry("rest", _mesh(state.mesh.vertices, state.mesh.faces, (0.8, 0.8, 0.78)), lit)
+        self._shown_mesh = _mesh(state.deformed, state.mesh.faces, (0.72, 0.74, 0.8))
         if self.shown["deformed"]:
-            scene.add_geometry("deformed", _mesh(state.deformed, state.mesh.faces, (0.72, 0.74, 0.8)), lit)
-        points = _material("defaultUnlit", 6.0)
-        if self.shown["handles"] and state.handles:
-            parts = [(h.indices, COLORS["fixed" if h.fixed else "moving"]) for h in state.handles]
-            scene.add_geometry("handles", _points(state.deformed, parts), points)
+            scene.add_geometry("deformed", self._shown_mesh, lit)
+        self._draw_controls()
         if len(state.selection):
-            scene.add_geometry("selection", _points(state.deformed, [(state.selection, COLORS["selection"])]), points)
+            parts = [(state.selection, COLORS["selection"])]
+            scene.add_geometry("selection", _points(state.posed_points, parts), _material("defaultUnlit", 6.0))
         if self._proxy is not None:
             rest, deformed, tets = self._proxy
             lines = _material("unlitLine", 1.0)
@@ -355,19 +372,34 @@ class Editor:
         self.last_update_ms = 1e3 * (time.perf_counter() - start)
         self.window.post_redraw()
 
-    def update_deformed(self) -> float:
-        """Redraw the deformed mesh (and the handles on it) only → seconds taken."""
+    def _draw_controls(self) -> None:
+        """(Re)draw the handles and the deformer's overlay (cage, skeleton) at the posed control points."""
+        scene, state = self.scene.scene, self.state
+        for name in ("handles", "controls"):
+            if scene.has_geometry(name):
+                scene.remove_geometry(name)
+        if self.shown["handles"] and state.handles:
+            parts = [(h.indices, COLORS["fixed" if h.fixed else "moving"]) for h in state.handles]
+            scene.add_geometry("handles", _points(state.posed_points, parts), _material("defaultUnlit", 6.0))
+        lines = state.backend.lines()
+        if lines is not None and self.shown[state.backend.layer]:
+            points, edges = lines
+            wire = o3d.t.geometry.LineSet(
+                o3d.core.Tensor(points.astype(np.float32)), o3d.core.Tensor(edges.astype(np.int32))
+            )
+            wire.line.colors = o3d.core.Tensor(np.tile(np.float32(COLORS["controls"]), (len(edges), 1)))
+            scene.add_geometry("controls", wire, _material("unlitLine", 2.0))
+
+    def update_deformed(self, normals: bool = False) -> float:
+        """Redraw the deformed mesh — its vertex positions set in the kept tensor mesh; its normals recomputed only
+        with ``normals`` (a drag keeps the last ones) — and the handles and overlay → seconds taken."""
         start = time.perf_counter()
         scene, state = self.scene.scene, self.state
         if self.shown["deformed"]:
+            _set_positions(self._shown_mesh, state.deformed, normals)
             scene.remove_geometry("deformed")
-            scene.add_geometry(
-                "deformed", _mesh(state.deformed, state.mesh.faces, (0.72, 0.74, 0.8)), _material("defaultLit")
-            )
-        if self.shown["handles"] and state.handles and scene.has_geometry("handles"):
-            parts = [(h.indices, COLORS["fixed" if h.fixed else "moving"]) for h in state.handles]
-            scene.remove_geometry("handles")
-            scene.add_geometry("handles", _points(state.deformed, parts), _material("defaultUnlit", 6.0))
+            scene.add_geometry("deformed", self._shown_mesh, _material("defaultLit"))
+        self._draw_controls()
         self.window.post_redraw()
         return time.perf_counter() - start
 
@@ -402,6 +434,8 @@ class Editor:
                 self._act(lambda: self.box(start, (x, y)) if far else self.click(x, y))
             elif gesture["mode"] == "brush":
                 self._act(lambda: self.brush(gesture["path"]))
+            elif not self._flush_posted and gesture["moved"]:  # else the last flush releases
+                self.release()
             return gui.Widget.EventCallbackResult.CONSUMED
         return gui.Widget.EventCallbackResult.CONSUMED
 
@@ -414,9 +448,10 @@ class Editor:
             self._drag["moved"] = True
         self.move(lambda: self.drag(dx, dy, record=first or self._drag is None))
 
-    def move(self, action: Callable[[], str]) -> None:
-        """Apply a move of the active handle, re-solve (warm-started) and redraw the deformed mesh; the time from
-        the move to the updated scene goes to the status line."""
+    def move(self, action: Callable[[], str], blocking: bool = False) -> None:
+        """Apply a move of the active handle, re-pose the mesh (warm-started) and redraw it; the time from the move
+        to the updated scene goes to the status line. Outside a drag (its end, a key, numbers) the move is then
+        settled (:meth:`release`; ``blocking``: before returning)."""
         start = time.perf_counter()
         try:
             message = action()
@@ -426,9 +461,49 @@ class Editor:
             return
         self.update_deformed()
         self.last_update_ms = 1e3 * (time.perf_counter() - start)
-        result = self.state.last_result
-        iterations = f", {result.iterations} iteration(s)" if result is not None else ""
-        self.say(f"{message} · {self.last_update_ms:.0f} ms{iterations}")
+        iterations = self.state.backend.last_iterations
+        counted = f", {iterations} iteration(s)" if iterations is not None else ""
+        self.say(f"{message} · {self.last_update_ms:.0f} ms{counted}")
+        if self._drag is None:
+            self.release(blocking)
+
+    def release(self, blocking: bool = False) -> None:
+        """Settle on release: finish the preview's solve in a worker thread (``blocking``: here) and show it — only if
+        the handles did not change meanwhile (the next move cancels it) — with the energy gap closed."""
+        snapshot, start = self.state.current, time.perf_counter()
+
+        def wanted() -> bool:
+            return self.state.current is snapshot and self._drag is None
+
+        def show(done) -> None:
+            if not wanted():
+                return
+            if done is not None:
+                self.state.deformed = done[0]
+            self.update_deformed(normals=True)
+            if done is not None:
+                _, before, after, iterations = done
+                self.say(
+                    f"settled on release: energy {before:.4g} → {after:.4g} ({(before - after) / after:+.1%} of the"
+                    f" converged energy closed, {iterations} iterations, {time.perf_counter() - start:.2f} s)"
+                )
+
+        def work() -> None:
+            try:
+                done = self.state.converge(wanted)
+            except NerfEditError as exc:
+                message = str(exc)
+                self.app.post_to_main_thread(self.window, lambda: self.say(message, error=True))
+                return
+            if blocking:
+                show(done)
+            else:
+                self.app.post_to_main_thread(self.window, lambda: show(done))
+
+        if blocking:
+            work()
+        else:
+            threading.Thread(target=work, daemon=True).start()
 
     def _on_key(self, event) -> gui.Widget.EventCallbackResult:
         if event.type != gui.KeyEvent.Type.DOWN:
@@ -471,9 +546,9 @@ class Editor:
         elif "quit" in step:
             self._exit()
         elif "drag" in step:
-            self.move(lambda: self.drag(*step["drag"]))
+            self.move(lambda: self.drag(*step["drag"]), blocking=True)
         elif any(k in step for k in ("translate", "rotate", "scale")):
-            self.move(lambda: self._scripted_move(step))
+            self.move(lambda: self._scripted_move(step), blocking=True)
         else:
             self._act(lambda: self._scripted(step))
         return True
@@ -513,11 +588,17 @@ class Editor:
 def _mesh(vertices: np.ndarray, faces: np.ndarray, color) -> o3d.t.geometry.TriangleMesh:
     """A tensor triangle mesh with vertex normals, one colour (the legacy mesh stalls Filament under llvmpipe)."""
     mesh = o3d.t.geometry.TriangleMesh()
-    mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32))
     mesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.int32))
     mesh.vertex.colors = o3d.core.Tensor(np.tile(np.asarray(color, dtype=np.float32), (len(vertices), 1)))
-    mesh.compute_vertex_normals()
+    _set_positions(mesh, vertices, normals=True)
     return mesh
+
+
+def _set_positions(mesh: o3d.t.geometry.TriangleMesh, vertices: np.ndarray, normals: bool) -> None:
+    """Set ``mesh``'s vertex positions (V,3) in place, and recompute its vertex normals when ``normals``."""
+    mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32))
+    if normals:
+        mesh.compute_vertex_normals()
 
 
 def _points(vertices: np.ndarray, parts) -> o3d.t.geometry.PointCloud:

@@ -1,13 +1,13 @@
-"""The editor's model, without a window: the selection, the handles, undo/redo, the edit spec and the surface solve.
+"""The editor's model, without a window: the selection, the handles, undo/redo, the edit spec and the solves.
 
-:class:`EditorState` holds a rest mesh, the current selection (vertex indices), the handles made from selections
-(fixed or moving, each moving one with a similarity transform ``x ↦ c + s R (x − c) + τ``, ``c`` its selection's rest
-centroid, exactly the spec's transform at t = 1) and an undo/redo history of snapshots. Everything the solvers see
-goes through :meth:`EditorState.spec`, parsed as ``nerfedit edit`` parses the saved file, so the editor shows what
-the command will compute:
+:class:`EditorState` holds an :class:`~nerfedit_plugin.viewer.backends.EditingBackend` (what handles grab for the
+chosen deformer: mesh vertices, cage vertices or skeleton joints), the current selection (control point indices),
+the handles made from selections (:class:`~nerfedit_plugin.viewer.handles.EditorHandle`) and an undo/redo history of
+snapshots. Everything the solvers see goes through :meth:`EditorState.spec`, parsed as ``nerfedit edit`` parses the
+saved file, so the editor shows what the command will compute:
 
-- :meth:`EditorState.preview` re-solves the surface ARAP after a move with a solver prefactored for the current
-  handle vertices (rebuilt only when they change), warm-started from the last result, a few iterations;
+- :meth:`EditorState.preview` poses the mesh after a move through the backend (prefactored or bound once);
+- :meth:`EditorState.converge` finishes an iterative preview (settle on release) and reports the energy gap closed;
 - :meth:`EditorState.settle` runs the deformer plugin on the spec exactly as ``nerfedit edit`` does (bind, deform):
   its frames are what a saved spec reproduces bit for bit.
 
@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -28,46 +29,14 @@ import yaml
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.edit.deformer import DeformerConfig
 from nerfedit_plugin.edit.selection_file import write_selection
-from nerfedit_plugin.edit.spec import EditSpec, parse_edit_spec
+from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import write_text
-
-PREVIEW_ITERATIONS = 2
-"""Local/global iterations per preview solve (each ~30–40 ms on the 28k-vertex bunny, 2 cores)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class EditorHandle:
-    """A handle: rest vertex ``indices`` (sorted, unique), ``fixed`` or moved by ``translate`` τ (3,), ``rotvec``
-    (3,, radians) and ``scale`` s about ``center`` c (its selection's rest centroid)."""
-
-    indices: np.ndarray
-    fixed: bool
-    center: np.ndarray
-    translate: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
-    rotvec: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
-    scale: float = 1.0
-
-    @property
-    def pivot(self) -> np.ndarray:
-        """Where the handle's centroid is now (``c + τ``): the default pivot of a rotation or scale."""
-        return self.center + self.translate
-
-    def transform_spec(self) -> dict:
-        """The spec's ``transform`` mapping (plain floats; ``rotate`` only when turned, ``scale`` only when not 1)."""
-        out: dict = {"translate": [float(v) for v in self.translate]}
-        angle = float(np.linalg.norm(self.rotvec))
-        if angle > 0:
-            axis = self.rotvec / angle
-            out["rotate"] = {"axis": [float(v) for v in axis], "degrees": float(np.degrees(angle))}
-            out["rotate"]["center"] = [float(v) for v in self.center]
-        if self.scale != 1.0:
-            out["scale"] = float(self.scale)
-        return out
+from nerfedit_plugin.registry import DEFORMERS, discover
+from nerfedit_plugin.viewer.backends import EditingBackend, backend_class, editing_backend
+from nerfedit_plugin.viewer.handles import EditorHandle
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,31 +49,50 @@ class Snapshot:
 
 
 class EditorState:
-    """The editor's state for one rest ``mesh`` and a deformer's config (``deformer``; its plugin bound by
+    """The editor's state over ``backend`` (its rest :attr:`mesh`, its deformer's config :attr:`deformer`, bound by
     :meth:`settle`). ``frames`` > 1 makes the spec an animation (frame 0 the rest pose); ``frame`` picks the one
-    previewed. ``preview_iterations`` bounds each preview solve."""
+    previewed."""
 
-    def __init__(
-        self,
-        mesh: SurfaceMesh,
-        deformer: DeformerConfig,
-        *,
-        frames: int = 1,
-        preview_iterations: int = PREVIEW_ITERATIONS,
-    ) -> None:
-        self.mesh, self.deformer = mesh, deformer
+    def __init__(self, backend: EditingBackend, *, frames: int = 1) -> None:
+        self.backend = backend
+        self.mesh, self.deformer = backend.rest, backend.config
         self.frames, self.frame = frames, frames - 1
-        self.preview_iterations = preview_iterations
         self.current = Snapshot(np.zeros(0, dtype=np.int64), (), None)
         self.undo_stack: list[Snapshot] = []
         self.redo_stack: list[Snapshot] = []
-        self.deformed = mesh.vertices.copy()
+        self.deformed = self.mesh.vertices.copy()
         """(V,3) float64: the surface as last solved (rest while there are no handles)."""
         self.settled: np.ndarray | None = None
         """(frames,V,3) float64 from :meth:`settle` for the handles as they are now, else None."""
-        self.last_result: ArapResult | None = None
-        self._solver: tuple[bytes, ArapSolver] | None = None
         self._edges: sp.csr_matrix | None = None
+
+    @classmethod
+    def open(
+        cls,
+        name: str,
+        mesh: SurfaceMesh,
+        path: str | os.PathLike,
+        keys: dict | None = None,
+        source_to_world: np.ndarray | None = None,
+    ) -> EditorState:
+        """The state of the edit spec at ``path`` for deformer ``name`` on ``mesh``, to keep editing: its handles
+        (selection files included), frames and the deformer's own keys (``keys``, e.g. a ``--skeleton``, override
+        them), shown settled; a ``frame: source`` spec needs the run's ``source_to_world``."""
+        file_keys = backend_class(name).file_keys  # refuses a deformer the editor has no backend for
+        config = discover(DEFORMERS).config_class(DEFORMERS, name)()
+        spec = load_edit_spec(path, config._target.spec_keys)
+        if spec.frame == "source":
+            if source_to_world is None:
+                raise NerfEditError(f"{path}: frame: source needs the run it was made for (--run RUN)")
+            spec = spec.in_world(source_to_world)
+        own = {key: "auto" if spec.extra[key] == "auto" else spec.path(key) for key in file_keys if key in spec.extra}
+        state = cls(editing_backend(name, mesh, {**own, **(keys or {})}, config), frames=spec.frames)
+        handles = state.backend.handles_of(spec)
+        moving = [i for i, h in enumerate(handles) if not h.fixed]
+        state.current = Snapshot(np.zeros(0, dtype=np.int64), handles, moving[-1] if moving else None)
+        state.preview()  # poses the control points
+        state.settle()  # shows the spec's own solve
+        return state
 
     # ---- snapshots -----------------------------------------------------------------------------
     @property
@@ -148,8 +136,9 @@ class EditorState:
         picked = np.unique(np.asarray(indices, dtype=np.int64).ravel())
         if not len(picked):
             raise NerfEditError("pick: no surface under the cursor (nothing selected)")
-        if picked[0] < 0 or picked[-1] >= self.mesh.n_vertices:
-            raise NerfEditError(f"pick: vertex indices must lie in [0, {self.mesh.n_vertices})")
+        count = len(self.backend.points)
+        if picked[0] < 0 or picked[-1] >= count:
+            raise NerfEditError(f"pick: {self.backend.what} indices must lie in [0, {count})")
         now = self.selection
         chosen = {"add": np.union1d(now, picked), "replace": picked, "remove": np.setdiff1d(now, picked)}
         if mode not in chosen:
@@ -165,6 +154,8 @@ class EditorState:
         """Add every vertex within geodesic distance ``radius`` (along mesh edges) of the selection."""
         if not len(self.selection):
             raise NerfEditError("grow: select vertices first")
+        if self.backend.faces is None:
+            raise NerfEditError(f"grow: {self.backend.what} have no surface to grow along")
         if not (np.isfinite(radius) and radius > 0):
             raise NerfEditError(f"grow: the radius must be a positive distance, got {radius}")
         distance = dijkstra(self._edge_graph(), indices=self.selection, limit=radius, min_only=True)
@@ -174,11 +165,11 @@ class EditorState:
 
     def _edge_graph(self) -> sp.csr_matrix:
         if self._edges is None:
-            faces, v = self.mesh.faces, self.mesh.vertices
+            faces, v = self.backend.faces, self.backend.points
             i = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2]])
             j = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
             length = np.linalg.norm(v[i] - v[j], axis=1)
-            n = self.mesh.n_vertices
+            n = len(v)
             self._edges = (
                 sp.coo_matrix((length, (i, j)), shape=(n, n))
                 .tocsr()
@@ -189,21 +180,18 @@ class EditorState:
     # ---- handles -------------------------------------------------------------------------------
     def mark(self, fixed: bool) -> str:
         """Make the selection a fixed or a moving handle (the moving one becomes the active handle) and clear the
-        selection. A selection of the whole mesh is refused: nothing would be left for the solver."""
+        selection; the backend refuses what its deformer cannot take (ARAP: the whole mesh; skeleton: not one
+        joint)."""
         chosen = self.selection
         if not len(chosen):
-            raise NerfEditError("mark: select vertices first (click, box or brush)")
-        if len(chosen) == self.mesh.n_vertices:
-            raise NerfEditError(
-                f"mark: the selection covers the whole mesh ({len(chosen)} vertices), nothing would be left to deform;"
-                " deselect part of it"
-            )
-        handle = EditorHandle(chosen, fixed, self.mesh.vertices[chosen].mean(0))
+            raise NerfEditError(f"mark: select {self.backend.what} first (click, box or brush)")
+        self.backend.check_handle(chosen, fixed)
+        handle = self.backend.handle(chosen, fixed)
         handles = self.handles + (handle,)
         active = self.current.active if fixed else len(handles) - 1
         self._commit(Snapshot(np.zeros(0, dtype=np.int64), handles, active), True)
         kind = "fixed" if fixed else "moving"
-        return f"handle {len(handles) - 1}: {kind}, {len(chosen)} vertices" + self._anchor_note()
+        return f"handle {len(handles) - 1}: {kind}, {len(chosen)} {self.backend.what}" + self.backend.note(handles)
 
     def activate(self, index: int) -> str:
         """Make moving handle ``index`` the one moves act on."""
@@ -221,15 +209,6 @@ class EditorState:
         self._commit(dataclasses.replace(self.current, handles=handles, active=active), True)
         return f"handle {index} removed"
 
-    def _anchor_note(self) -> str:
-        moving = any(not h.fixed for h in self.handles)
-        if moving and not any(h.fixed for h in self.handles):
-            return (
-                "; no fixed handle: the whole mesh moves rigidly with the moving handle (ARAP's minimum is the rigid"
-                " motion) — mark a fixed handle to anchor it"
-            )
-        return ""
-
     # ---- moves of the active handle ------------------------------------------------------------
     def _moved(self, change, record: bool) -> str:
         handle = self.active
@@ -241,7 +220,7 @@ class EditorState:
         handles = list(self.handles)
         handles[self.current.active] = moved
         self._commit(dataclasses.replace(self.current, handles=tuple(handles)), record)
-        return f"handle {self.current.active}: {json.dumps(moved.transform_spec())}" + self._anchor_note()
+        return f"handle {self.current.active}: {json.dumps(moved.transform_spec())}" + self.backend.note(self.handles)
 
     def translate(self, delta, record: bool = True) -> str:
         """Move the active handle by ``delta`` (3,). ``record=False`` folds the move into the last undo step (the
@@ -267,6 +246,8 @@ class EditorState:
 
     def scale(self, factor: float, pivot=None, record: bool = True) -> str:
         """Scale the active handle by ``factor`` (> 0) about ``pivot`` (default: its current centroid)."""
+        if not self.backend.scales:
+            raise NerfEditError(f"scale: {self.backend.what} turn and move, they do not scale")
         if not (np.isfinite(factor) and factor > 0):
             raise NerfEditError(f"scale: the factor must be > 0, got {factor}")
 
@@ -279,23 +260,22 @@ class EditorState:
         return self._moved(change, record)
 
     # ---- the spec ------------------------------------------------------------------------------
-    def spec_data(self, selection_files: dict[int, str] | None = None) -> dict:
+    def spec_data(self, selection_files: dict[int, str] | None = None, folder: Path | None = None) -> dict:
         """The edit spec (documented format) of the handles; handle ``i`` selects ``{"file": selection_files[i]}``
-        when given, else its ``indices``."""
+        when given, else its ``indices``; the deformer's files are named relative to ``folder`` (absolute when
+        None)."""
         if not self.handles:
-            raise NerfEditError("spec: no handles yet (select vertices, mark them fixed or moving)")
+            raise NerfEditError(f"spec: no handles yet (select {self.backend.what}, mark them fixed or moving)")
         files = selection_files or {}
-        handles = []
-        for i, handle in enumerate(self.handles):
-            select = {"file": files[i]} if i in files else {"indices": [int(k) for k in handle.indices]}
-            handles.append(
-                {"select": select, **({"fixed": True} if handle.fixed else {"transform": handle.transform_spec()})}
-            )
-        return {"handles": handles, "frames": self.frames}
+        selects = [
+            {"file": files[i]} if i in files else {"indices": [int(k) for k in h.indices]}
+            for i, h in enumerate(self.handles)
+        ]
+        return {**self.backend.spec_data(self.handles, selects, folder), "frames": self.frames}
 
     def spec(self) -> EditSpec:
         """:meth:`spec_data` parsed like a spec file (what the solvers use)."""
-        return parse_edit_spec(self.spec_data(), self.deformer._target.spec_keys, "<editor>")
+        return parse_edit_spec(self.spec_data(), self.backend.spec_keys, "<editor>")
 
     def save(self, path: str | os.PathLike, selection_files: bool = True) -> list[Path]:
         """Write the spec to ``path`` (JSON, or YAML by suffix) and, with ``selection_files``, each handle's selection
@@ -308,13 +288,16 @@ class EditorState:
             raise NerfEditError(f"save: cannot write into {folder} (missing or read-only); choose another place")
         if path.is_dir():
             raise NerfEditError(f"save: {path} is a folder; give a spec file name (edit.json)")
+        controls = None if self.backend.faces is None else SurfaceMesh(self.backend.points, self.backend.faces)
         names = (
-            {i: f"{path.stem}.handle{i}.selection.json" for i in range(len(self.handles))} if selection_files else {}
+            {i: f"{path.stem}.handle{i}.selection.json" for i in range(len(self.handles))}
+            if selection_files and controls is not None
+            else {}
         )
-        data = self.spec_data(names)
+        data = self.spec_data(names, folder)
         try:
             written = [
-                write_selection(folder / names[i], self.mesh, h.indices)
+                write_selection(folder / names[i], controls, h.indices)
                 for i, h in enumerate(self.handles)
                 if i in names
             ]
@@ -328,32 +311,30 @@ class EditorState:
 
     # ---- solves ----------------------------------------------------------------------------------
     def targets(self) -> tuple[np.ndarray, np.ndarray]:
-        """The handle vertices (H,) and their targets (frames, H, 3), as the spec resolves them."""
-        return self.spec().handle_targets(self.mesh.vertices, self.mesh.faces)
+        """The handles' control points (H,) and their targets (frames, H, 3), as the spec resolves them."""
+        return self.spec().handle_targets(self.backend.points, self.backend.faces)
 
     def preview(self) -> np.ndarray:
-        """Re-solve the surface ARAP for the handles as they are (frame :attr:`frame`), warm-started from the last
-        solve, at most :attr:`preview_iterations` iterations → :attr:`deformed` (V,3). No handles: the rest pose."""
+        """Pose the mesh for the handles as they are (frame :attr:`frame`) through the backend, warm-started from the
+        last preview → :attr:`deformed` (V,3). No handles: the rest pose."""
         if not self.handles:
-            self.deformed, self.last_result = self.mesh.vertices.copy(), None
+            self.deformed, self.backend.posed = self.mesh.vertices.copy(), self.backend.points
             return self.deformed
-        indices, targets = self.targets()
-        result = self._arap(indices).solve(
-            targets[self.frame],
-            initial=self.deformed,
-            max_iterations=self.preview_iterations,
-            tolerance=getattr(self.deformer, "tolerance", 1e-6),
-        )
-        self.deformed, self.last_result = result.vertices, result
+        self.deformed = self.backend.preview(self.spec(), self.frame, self.deformed)
         return self.deformed
 
-    def _arap(self, indices: np.ndarray) -> ArapSolver:
-        """The ARAP solver factored for these handle vertices (kept until they change)."""
-        key = indices.tobytes()
-        if self._solver is None or self._solver[0] != key:
-            energy = getattr(self.deformer, "energy", None)
-            self._solver = (key, ArapSolver(self.mesh.vertices, self.mesh.faces, energy=energy, fixed=indices))
-        return self._solver[1]
+    def converge(self, wanted: Callable[[], bool] = lambda: True) -> tuple[np.ndarray, float, float, int] | None:
+        """Finish the last preview's solve (settle on release) → ``(vertices (V,3), energy before, energy after,
+        iterations)``, or None when the preview is exact or ``wanted()`` turned false; :attr:`deformed` is left to
+        the caller (a worker thread hands it over only if the handles did not change meanwhile)."""
+        if not self.handles:
+            return None
+        return self.backend.converge(self.spec(), self.frame, self.deformed, wanted)
+
+    @property
+    def posed_points(self) -> np.ndarray:
+        """The control points (P,3) as shown: the deformed mesh's vertices (ARAP), else the posed cage or joints."""
+        return self.backend.posed_points(self.deformed)
 
     def settle(self) -> np.ndarray:
         """Run the deformer plugin on the spec as ``nerfedit edit`` does → :attr:`settled` (frames,V,3); the

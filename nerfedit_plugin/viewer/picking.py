@@ -13,6 +13,8 @@ import numpy as np
 
 from nerfedit_plugin.geometry.raycast import cast_rays, raycasting_scene
 
+CLICK_RADIUS = 12.0
+"""A click on points without a surface (skeleton joints) picks the nearest one within this many pixels."""
 VISIBLE_SLACK = 1e-3
 """A vertex is visible when the first surface hit on the ray towards it lies at least at its distance × (1 −
 this) (float32 ray casting, vertices on the hit triangle)."""
@@ -68,16 +70,21 @@ class View(NamedTuple):
 
 
 class Picker:
-    """Picks vertices of a mesh as drawn (``vertices (V,3)``, ``faces (F,3)``) through a :class:`View`."""
+    """Picks vertices of a mesh as drawn (``vertices (V,3)``, ``faces (F,3)``) through a :class:`View`; without
+    ``faces``, points (skeleton joints) that nothing hides."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray | None) -> None:
         self.vertices = np.asarray(vertices, dtype=np.float64)
-        self.faces = np.asarray(faces, dtype=np.int64)
-        self.scene = raycasting_scene(self.vertices, self.faces)
+        self.faces = None if faces is None else np.asarray(faces, dtype=np.int64)
+        self.scene = None if faces is None else raycasting_scene(self.vertices, self.faces)
 
     def click(self, view: View, x: float, y: float) -> int | None:
         """The vertex nearest the surface point under pixel ``(x, y)`` (of the triangle hit), or None on empty
-        space."""
+        space; without faces, the point nearest the pixel within :data:`CLICK_RADIUS` pixels."""
+        if self.scene is None:
+            near = self.brush(view, np.array([[x, y]]), CLICK_RADIUS)
+            pixels = view.project(self.vertices[near])[0]
+            return int(near[np.argmin(np.sum((pixels - [x, y]) ** 2, axis=1))]) if len(near) else None
         origin, direction = view.ray(x, y)
         hit = cast_rays(self.scene, np.concatenate([origin, direction])[None])
         if not np.isfinite(hit["t_hit"][0]):
@@ -87,8 +94,8 @@ class Picker:
         return int(corners[np.argmin(np.linalg.norm(self.vertices[corners] - point, axis=1))])
 
     def visible(self, view: View, candidates: np.ndarray) -> np.ndarray:
-        """Vertex indices (K,) → those not hidden behind the surface from the camera."""
-        if not len(candidates):
+        """Vertex indices (K,) → those not hidden behind the surface from the camera (all, without one)."""
+        if not len(candidates) or self.scene is None:
             return candidates
         eye = view.camera_to_world[:3, 3]
         towards = self.vertices[candidates] - eye

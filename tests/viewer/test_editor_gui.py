@@ -1,5 +1,6 @@
 """The editor window under a virtual display, driven by a script: pick vertices, move a handle, save; the screenshot
-after the move differs from the rest pose's where the handle moved, and the saved spec reproduces the editor."""
+after the move differs from the rest pose's where the handle moved, and the saved spec reproduces the editor; a cage
+edit saved and opened again (``--spec``) shows the same view."""
 
 import json
 import os
@@ -12,12 +13,39 @@ import pytest
 import skimage.io
 
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.viewer.backends import editing_backend
 
 MESH = "sample:bone"
 XVFB = shutil.which("xvfb-run")
 
 
-@pytest.mark.skipif(XVFB is None, reason="no xvfb-run (apt-get install xvfb libvulkan1 mesa-vulkan-drivers)")
+def _editor(tmp_path, steps: list[dict], *options: str) -> subprocess.CompletedProcess:
+    """Run ``nerfedit view --mesh MESH --script`` (the steps) under Xvfb; it must end cleanly."""
+    script = tmp_path / f"steps{len(list(tmp_path.glob('steps*.json')))}.json"
+    script.write_text(json.dumps(steps))
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    result = subprocess.run(
+        [XVFB, "-a", "-s", "-screen 0 1280x800x24", sys.executable, "-m", "nerfedit_plugin.cli.app", "view"]
+        + ["--mesh", MESH, "--script", str(script), *options],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=240,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    return result
+
+
+def _image(path):
+    return skimage.io.imread(path)[..., :3].astype(int)
+
+
+needs_xvfb = pytest.mark.skipif(
+    XVFB is None, reason="no xvfb-run (apt-get install xvfb libvulkan1 mesa-vulkan-drivers)"
+)
+
+
+@needs_xvfb
 def test_a_scripted_edit_moves_the_view_and_saves_a_reproducible_spec(tmp_path):
     bone = SurfaceMesh.load(MESH)
     axis = int(np.argmax(np.ptp(bone.vertices, axis=0)))
@@ -40,23 +68,40 @@ def test_a_scripted_edit_moves_the_view_and_saves_a_reproducible_spec(tmp_path):
         {"save": "/proc/nerfedit-editor/edit.json"},  # a read-only place: a message, nothing written
         {"quit": True},
     ]
-    (tmp_path / "steps.json").write_text(json.dumps(steps))
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    result = subprocess.run(
-        [XVFB, "-a", "-s", "-screen 0 1280x800x24", sys.executable, "-m", "nerfedit_plugin.cli.app", "view"]
-        + ["--mesh", MESH, "--script", str(tmp_path / "steps.json")],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=240,
-    )
-    assert result.returncode == 0, result.stderr[-2000:]
+    result = _editor(tmp_path, steps)
     assert "pick: no surface under the cursor" in result.stderr
     assert "save: cannot write into /proc/nerfedit-editor" in result.stderr
-    rest = skimage.io.imread(tmp_path / "rest.png")[..., :3].astype(int)
-    moved = skimage.io.imread(tmp_path / "moved.png")[..., :3].astype(int)
+    rest, moved = _image(tmp_path / "rest.png"), _image(tmp_path / "moved.png")
     changed = np.abs(rest - moved).sum(-1) > 30
     assert changed.mean() > 0.002, "the move left the view unchanged"
     spec = json.loads((tmp_path / "edit.json").read_text())
     assert spec["handles"][1]["select"] == {"file": "edit.handle1.selection.json"}
     assert spec["handles"][1]["transform"]["translate"][(axis + 1) % 3] > 0.1 * bone.bbox_diagonal
+
+
+@needs_xvfb
+def test_a_cage_edit_saved_and_opened_again_shows_the_same_view(tmp_path):
+    """--deformer cage: cage vertices picked and moved change the view; the saved spec, opened with --spec, shows it."""
+    bone = SurfaceMesh.load(MESH)
+    cage = editing_backend("cage", bone).points
+    axis = int(np.argmax(np.ptp(cage, axis=0)))
+    end = np.flatnonzero(cage[:, axis] >= np.quantile(cage[:, axis], 0.8)).tolist()
+    shift = [0.0, 0.0, 0.0]
+    shift[(axis + 1) % 3] = 0.15 * bone.bbox_diagonal
+    steps = [
+        {"screenshot": str(tmp_path / "rest.png")},
+        {"pick": end},
+        {"mark": "moving"},
+        {"translate": shift},
+        {"save": str(tmp_path / "cage.json")},
+        {"screenshot": str(tmp_path / "moved.png")},
+        {"quit": True},
+    ]
+    _editor(tmp_path, steps, "--deformer", "cage")
+    rest, moved = _image(tmp_path / "rest.png"), _image(tmp_path / "moved.png")
+    assert (np.abs(rest - moved).sum(-1) > 30).mean() > 0.002, "the cage move left the view unchanged"
+    assert json.loads((tmp_path / "cage.json").read_text())["cage"] == "auto"
+    steps = [{"screenshot": str(tmp_path / "opened.png")}, {"quit": True}]
+    result = _editor(tmp_path, steps, "--deformer", "cage", "--spec", str(tmp_path / "cage.json"))
+    assert "1 handle(s) loaded" in " ".join(result.stdout.split())  # (the console wraps lines)
+    assert (np.abs(_image(tmp_path / "opened.png") - moved).sum(-1) > 30).mean() < 0.002
