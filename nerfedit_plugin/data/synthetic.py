@@ -140,8 +140,10 @@ def _write_views(mesh: SurfaceMesh, cameras: Cameras, paths: list[Path], supersa
 
 @dataclass
 class GenerateConfig:
-    """Render a mesh into a Blender-format dataset (transforms_{train,val,test}.json + RGBA PNGs + mesh.ply), or,
-    with --objects, a scene of several meshes on a textured floor inside a textured background (+ scene.json)."""
+    """Render a mesh, or a scene of several (--objects), into a Blender-format dataset.
+
+    A mesh: transforms_{train,val,test}.json + RGBA PNGs + mesh.ply. A scene: its meshes stand on a textured floor
+    inside a textured background (opaque images, + scene.json)."""
 
     out: Path
     """Output dataset folder (must not exist or be empty unless --overwrite)."""
