@@ -78,6 +78,13 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
         renderer then skips them); ``None`` (the default) = no grid, every sample is queried."""
         return None
 
+    def background_model(self) -> torch.nn.Module | None:
+        """Optional model of what lies outside ``scene_bbox`` (a :class:`~nerfedit_plugin.fields.background.
+        BackgroundField`: ``samples(origins, directions, near, far, stratified)`` and ``query(points)``), composited
+        by the renderer in ray order with the field's own samples and never bent; ``None`` (the default): the
+        render config's constant background colour."""
+        return None
+
     def sharpness(self) -> torch.Tensor:
         """NeuS inverse standard deviation ``s`` of the logistic density (``sdf`` fields only)."""
         raise NotImplementedError(f"{type(self).__name__} is not an SDF field")

@@ -1,5 +1,5 @@
 """Building blocks of the dense-grid field backends (nerf, neus): their shared config, the coarse-to-fine resolution
-check and the colour decoder.
+check, the colour decoder and the background model's life cycle (:mod:`nerfedit_plugin.fields.background`).
 
 Colour: ``rgb = sigmoid(g₁..₃ + MLP([g₁.., SH(d)]))`` — a direct colour from the first three appearance features
 ``g`` of the grid plus, with ``decoder="mlp"``, a view-dependent residual of a one-hidden-layer MLP on all features
@@ -17,6 +17,7 @@ from typing import Any, Literal
 import torch
 
 from nerfedit_plugin.errors import OptionError, check_option
+from nerfedit_plugin.fields.background import BackgroundField
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.encoding import spherical_harmonics
 from nerfedit_plugin.training.trainer import TrainerConfig
@@ -55,6 +56,19 @@ class GridFieldConfig(FieldConfig):
     """Adam learning rate of the grid."""
     lr_mlp: float = 1e-2
     """Adam learning rate of the colour MLP."""
+    background: Literal["auto", "color", "field"] = "auto"
+    """What lies outside the scene box: ``field`` — a background model in contracted space (floors and surroundings
+    that run out of the frame; :mod:`nerfedit_plugin.fields.background`), composited in ray order and never bent;
+    ``color`` — the render config's constant colour (objects on a transparent background); ``auto`` — decided by
+    ``fit`` from the training images: ``field`` when they are opaque (no alpha channel, or alpha ≡ 1), else
+    ``color`` (the checkpoint stores the decision)."""
+    background_resolution: int = 128
+    """Final cells per axis of the background grid over the contracted cube [-2,2]³ (refined at
+    ``upsample_steps`` with the field's grid)."""
+    background_samples: tuple[int, int] = (32, 32)
+    """Background samples per ray between the camera and the scene box, and beyond the box."""
+    lr_background: float = 0.1
+    """Adam learning rate of the background grid."""
     train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
     """Optimisation budget and schedule."""
 
@@ -72,6 +86,8 @@ class GridFieldConfig(FieldConfig):
             hidden=16,
             occupancy_resolution=16,
             occupancy_every=16,
+            background_resolution=32,
+            background_samples=(16, 16),
             train=TrainerConfig.tiny(seconds),
         )
         return cls(**{**preset, **overrides})
@@ -99,10 +115,18 @@ def check_grid_config(config: GridFieldConfig) -> None:
         check_option(config, "features", config.features, config.features == 3, "exactly 3 with decoder rgb")
     check_option(config, "hidden", config.hidden, config.hidden >= 1, "a positive integer")
     check_option(config, "sh_degree", config.sh_degree, config.sh_degree in (0, 1, 2), "0, 1 or 2")
+    choices = ("auto", "color", "field")
+    check_option(config, "background", config.background, config.background in choices, "auto, color or field")
+    background = config.background_resolution
+    ok = background >> levels >= 1 and (background >> levels) << levels == background
+    check_option(config, "background_resolution", background, ok, f"a positive multiple of 2^{levels} (upsample_steps)")
+    samples = config.background_samples
+    ok = len(samples) == 2 and min(samples) >= 1
+    check_option(config, "background_samples", samples, ok, "two positive integers (before the box, beyond it)")
     check_option(config, "occupancy_dilation", config.occupancy_dilation, config.occupancy_dilation >= 0, ">= 0")
     check_option(config, "occupancy_warmup", config.occupancy_warmup, config.occupancy_warmup >= 0, ">= 0")
     check_option(config, "occupancy_every", config.occupancy_every, config.occupancy_every >= 1, ">= 1")
-    for name in ("lr_grid", "lr_mlp"):
+    for name in ("lr_grid", "lr_mlp", "lr_background"):
         value = getattr(config, name)
         check_option(config, name, value, 0 < value < math.inf, "a positive number")
     check_trainer_config(config, config.train, "train.")
@@ -141,15 +165,18 @@ def start_resolution(config: Any) -> int:
 
 
 def grid_schedule(field: Any) -> Callable[[int], bool]:
-    """The trainer callback of a grid field (``field.grid``, ``field.update_occupancy()``, ``field.config`` a
-    :class:`GridFieldConfig`): refine the grid after each of ``upsample_steps`` (returns True: the optimiser is
-    rebuilt) and refresh the occupancy grid every ``occupancy_every`` steps after ``occupancy_warmup``."""
+    """The trainer callback of a grid field (``field.grid``, ``field.background``, ``field.update_occupancy()``,
+    ``field.config`` a :class:`GridFieldConfig`): refine the grid and the background grid after each of
+    ``upsample_steps`` (returns True: the optimiser is rebuilt) and refresh the occupancy grid every
+    ``occupancy_every`` steps after ``occupancy_warmup``."""
     config = field.config
 
     def callback(step: int) -> bool:
         refine = step + 1 in config.upsample_steps
         if refine:
             field.grid.upsample()
+            if field.background is not None:
+                field.background.grid.upsample()
         since = step + 1 - config.occupancy_warmup
         if since >= 0 and since % config.occupancy_every == 0:
             field.update_occupancy()
@@ -158,10 +185,50 @@ def grid_schedule(field: Any) -> Callable[[int], bool]:
     return callback
 
 
+def silhouettes(dataset: Any) -> torch.Tensor | None:
+    """Coverage ``(C,H,W)`` bool (alpha > 0) of a dataset's images when they have a transparent background, for
+    carving and the visual hull; None for opaque images (no alpha channel, or alpha ≡ 1: no silhouettes)."""
+    return None if dataset.opaque else dataset.alpha > 0
+
+
 class GridField(Field):
     """What the dense-grid fields share beyond their config: view dependence from the colour decoder, the training
-    samples per ray as the render default, the occupancy-grid mask. Subclasses set ``self.color`` (a
-    :class:`ColorDecoder`) and ``self.occupancy`` (an ``OccupancyGrid`` or None)."""
+    samples per ray as the render default, the occupancy-grid mask, the background model (``self.background``, a
+    :class:`BackgroundField` or None). Subclasses set ``self.color`` (a :class:`ColorDecoder`) and
+    ``self.occupancy`` (an ``OccupancyGrid`` or None)."""
+
+    def __init__(self, config: GridFieldConfig, scene_bbox: torch.Tensor) -> None:
+        super().__init__(config, scene_bbox)
+        self.background = None
+        if config.background == "field":
+            self._add_background()
+
+    def _add_background(self) -> None:
+        config = self.config
+        final = config.background_resolution
+        start = final >> len(config.upsample_steps)
+        self.background = BackgroundField(self.scene_bbox, start, final, *config.background_samples)
+
+    def background_model(self) -> BackgroundField | None:
+        return self.background
+
+    def prepare_background(self, dataset: Any, trainer: TrainerConfig) -> TrainerConfig:
+        """Before ``fit``: settle ``background="auto"`` on ``dataset`` (``field`` for opaque images, else ``color``;
+        ``self.config`` becomes a copy saying which) and build the background model when it is on. Returns the
+        trainer config to use: with a background model rays are drawn from every pixel."""
+        if self.config.background == "auto":
+            self.config = dataclasses.replace(self.config, background="field" if dataset.opaque else "color")
+        if self.config.background != "field":
+            return trainer
+        if self.background is None:
+            self._add_background()
+        return dataclasses.replace(trainer, foreground_margin=-1)
+
+    def background_groups(self) -> list[dict]:
+        """The optimiser group of the background grid (none without a background model)."""
+        if self.background is None:
+            return []
+        return [{"params": list(self.background.parameters()), "lr": self.config.lr_background}]
 
     @property
     def view_dependent(self) -> bool:

@@ -19,9 +19,16 @@ import torch.nn.functional as F
 
 from nerfedit_plugin.errors import check_option
 from nerfedit_plugin.fields.encoding import DenseGrid
-from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
+from nerfedit_plugin.fields.grid_field import (
+    ColorDecoder,
+    GridField,
+    GridFieldConfig,
+    grid_schedule,
+    silhouettes,
+    start_resolution,
+)
 from nerfedit_plugin.fields.level_set import extract_level_set
-from nerfedit_plugin.fields.occupancy import OccupancyGrid
+from nerfedit_plugin.fields.occupancy import OccupancyGrid, cell_maxima
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.training.trainer import TrainerConfig, train
 
@@ -91,9 +98,8 @@ class NerfField(GridField):
     def cell_max_density(self) -> torch.Tensor:
         """Exact maximum of σ over each occupancy cell ``(R,R,R)``: the max over the grid vertices of the cell
         (trilinear interpolation is multilinear, softplus increasing)."""
-        k = self.grid.resolution // self.config.occupancy_resolution
-        raw = self.grid.vertex_values()[:1]
-        return F.softplus(F.max_pool3d(raw[None], kernel_size=k + 1, stride=k)[0, 0] + self.shift) / self.cell
+        raw = self.grid.vertex_values()[0]
+        return F.softplus(cell_maxima(raw, self.config.occupancy_resolution) + self.shift) / self.cell
 
     def update_occupancy(self) -> None:
         """Recompute the occupancy grid from the current densities."""
@@ -105,22 +111,25 @@ class NerfField(GridField):
 
     def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
         """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides
-        ``config.train``): the occupancy grid is carved to the visual hull, refreshed every ``occupancy_every`` steps
-        after the warm-up, and the grid is refined at ``upsample_steps``."""
+        ``config.train``): the background model settled (:meth:`prepare_background`), the occupancy grid carved to
+        the visual hull of transparent images, refreshed every ``occupancy_every`` steps after the warm-up, and the
+        grid refined at ``upsample_steps``."""
+        trainer = self.prepare_background(dataset, trainer or self.config.train)
         config = self.config
 
         def groups() -> list[dict]:
             found = [{"params": list(self.grid.parameters()), "lr": config.lr_grid}]
             if self.color.mlp is not None:
                 found.append({"params": list(self.color.parameters()), "lr": config.lr_mlp})
-            return found
+            return found + self.background_groups()
 
-        if self.occupancy is not None and config.carve and dataset.alpha is not None:
-            self.occupancy.carve(dataset.cameras, dataset.alpha.to(self.scene_bbox.device) > 0)
+        coverage = silhouettes(dataset)
+        if self.occupancy is not None and config.carve and coverage is not None:
+            self.occupancy.carve(dataset.cameras, coverage.to(self.scene_bbox.device))
         log = train(
             self,
             dataset,
-            trainer or config.train,
+            trainer,
             param_groups=groups,
             callback=grid_schedule(self),
             eval_dataset=eval_dataset,

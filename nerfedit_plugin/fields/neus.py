@@ -23,9 +23,16 @@ import torch.nn.functional as F
 
 from nerfedit_plugin.errors import check_option
 from nerfedit_plugin.fields.encoding import DenseGrid
-from nerfedit_plugin.fields.grid_field import ColorDecoder, GridField, GridFieldConfig, grid_schedule, start_resolution
+from nerfedit_plugin.fields.grid_field import (
+    ColorDecoder,
+    GridField,
+    GridFieldConfig,
+    grid_schedule,
+    silhouettes,
+    start_resolution,
+)
 from nerfedit_plugin.fields.level_set import extract_level_set
-from nerfedit_plugin.fields.occupancy import OccupancyGrid
+from nerfedit_plugin.fields.occupancy import OccupancyGrid, cell_maxima
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.training.trainer import TrainerConfig, train
 
@@ -41,8 +48,9 @@ class NeusConfig(GridFieldConfig):
     init_radius: float = 0.5
     """Radius of the initial sphere, as a fraction of the smallest half side of the scene box."""
     init_hull: bool = True
-    """When the training images have alpha, :meth:`NeusField.fit` first replaces the sphere by the signed distance
-    to the visual hull of the covered pixels (at the starting grid resolution), so training starts near the surface."""
+    """When the training images have a transparent background (alpha < 1 somewhere), :meth:`NeusField.fit` first
+    replaces the sphere by the signed distance to the visual hull of the covered pixels (at the starting grid
+    resolution), so training starts near the surface; opaque images keep the sphere."""
     sharpness_init: float = 0.5
     """Initial NeuS sharpness times the final cell size, ``s · h`` (0.5: the logistic density spans ~2 cells)."""
     eikonal_weight: float = 1e-3
@@ -161,10 +169,8 @@ class NeusField(GridField):
     def cell_min_distance(self) -> torch.Tensor:
         """Exact ``min |f|`` over each occupancy cell ``(R,R,R)``: the distance from 0 to the range of the vertex
         values of the cell."""
-        k = self.grid.resolution // self.config.occupancy_resolution
-        raw = self.grid.vertex_values()[:1][None]
-        high = F.max_pool3d(raw, kernel_size=k + 1, stride=k)[0, 0]
-        low = -F.max_pool3d(-raw, kernel_size=k + 1, stride=k)[0, 0]
+        raw, cells = self.grid.vertex_values()[0], self.config.occupancy_resolution
+        high, low = cell_maxima(raw, cells), -cell_maxima(-raw, cells)
         return (F.relu(low) + F.relu(-high)) * self.cell
 
     def update_occupancy(self) -> None:
@@ -177,9 +183,11 @@ class NeusField(GridField):
         """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides
         ``config.train``): colour loss + ``eikonal_weight`` × eikonal loss, cosine annealing over ``anneal_steps``, the
         occupancy band carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and
-        the grid refined at ``upsample_steps``."""
+        the grid refined at ``upsample_steps``. Opaque images (the background model on, see
+        :meth:`prepare_background`) have no silhouettes: the field starts from the sphere and nothing is carved."""
+        trainer = self.prepare_background(dataset, trainer or self.config.train)
         config = self.config
-        generator = torch.Generator().manual_seed((trainer or config.train).seed)
+        generator = torch.Generator().manual_seed(trainer.seed)
 
         def regularizer(step: int) -> torch.Tensor:
             return config.eikonal_weight * self.eikonal_loss(self._eikonal_points(config.eikonal_points, generator))
@@ -189,10 +197,11 @@ class NeusField(GridField):
                 {"params": list(self.grid.parameters()), "lr": config.lr_grid},
                 {"params": [self.log_sharpness], "lr": config.lr_sharpness},
                 {"params": list(self.color.parameters()), "lr": config.lr_mlp},
-            ]
+            ] + self.background_groups()
 
-        if dataset.alpha is not None:
-            coverage = dataset.alpha.to(self.scene_bbox.device) > 0
+        coverage = silhouettes(dataset)
+        if coverage is not None:
+            coverage = coverage.to(self.scene_bbox.device)
             if config.init_hull:
                 self.init_from_hull(dataset.cameras, coverage)
             if self.occupancy is not None and config.carve:
@@ -200,7 +209,7 @@ class NeusField(GridField):
         log = train(
             self,
             dataset,
-            trainer or config.train,
+            trainer,
             param_groups=groups,
             regularizer=regularizer,
             callback=grid_schedule(self),

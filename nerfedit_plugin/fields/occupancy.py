@@ -14,6 +14,14 @@ import torch
 import torch.nn.functional as F
 
 
+def cell_maxima(values: torch.Tensor, cells: int) -> torch.Tensor:
+    """Exact maximum of a trilinear interpolant over each of ``cells³`` equal cells: ``values (N+1, N+1, N+1)`` at
+    the vertices of ``N³`` grid cells (``cells`` divides ``N``) → ``(cells,)*3``, the maximum of the vertex values of
+    each cell (interpolation is multilinear, so it never exceeds them)."""
+    k = (values.shape[0] - 1) // cells
+    return F.max_pool3d(values[None, None], kernel_size=k + 1, stride=k)[0, 0]
+
+
 class OccupancyGrid(torch.nn.Module):
     """``R³`` equal cells (``R`` ≤ 256) over ``bbox (2,3)``; starts all occupied. Points outside the box are
     unoccupied."""

@@ -5,8 +5,11 @@ at ``n_samples`` bin centres of width ``δ`` (stratified when training). With a 
 ``x_c``, vacated ones are empty, view directions become ``normalize(J d)`` and SDF gradients ``∇ₓf = Jᵀ ∇f(x_c)``.
 Opacity ``α = 1 − exp(−σ δ)`` (density) or NeuS's unbiased ``α = clamp((Φ_s(f−) − Φ_s(f+)) / Φ_s(f−), 0, 1)``,
 ``f∓ = f ∓ c' δ/2`` with ``c'`` the annealed cosine of ``c = d · ∇ₓf`` (sdf); ``w_i = α_i Π_{j<i} (1 − α_j)``,
-``rgb = Σ w c + (1 − Σ w)·background``, ``depth = Σ w t / Σ w``. Opaque fields (``Field.opaque``) are shaded once at
-each ray's refined first inside point ``t*`` instead. Full semantics: docs/architecture.md, "Rendering".
+``rgb = Σ w c + (1 − Σ w)·background``, ``depth = Σ w t / Σ w``. A field's background model
+(``Field.background_model()``) adds samples outside ``scene_bbox`` — camera to box, box to infinity — queried unbent
+with ``α = 1 − exp(−σ δ)`` over contracted bin lengths, merged with the field's in ray order before compositing.
+Opaque fields (``Field.opaque``) are shaded once at each ray's refined first inside point ``t*`` instead. Full
+semantics: docs/architecture.md, "Rendering".
 """
 
 from __future__ import annotations
@@ -159,6 +162,11 @@ def render_rays(
     background = torch.tensor(config.background, dtype=origins.dtype, device=device)
     if field.opaque:
         return _render_opaque(field, origins, directions, near, t, background, config, deformation, frame)
+    delta, outside = delta.expand(n_rays, n), None
+    model = field.background_model()
+    if model is not None:
+        t, delta, outside = _with_background(model, field.scene_bbox, origins, directions, t, delta, stratified)
+        n = t.shape[1]
     stop = config.early_stop if not torch.is_grad_enabled() else 0.0
     segment = VOLUME_SEGMENT if stop > 0 else n
     color_sum, depth_sum = origins.new_zeros(n_rays, 3), origins.new_zeros(n_rays)
@@ -173,10 +181,11 @@ def render_rays(
             origins.index_select(0, active),
             directions.index_select(0, active),
             ts,
-            delta.index_select(0, active),
+            delta.index_select(0, active)[:, start : start + segment],
             config,
             deformation,
             frame,
+            None if outside is None else (model, outside.index_select(0, active)[:, start : start + segment]),
         )
         inner = torch.cumprod(torch.cat([alpha.new_ones(len(active), 1), 1.0 - alpha], dim=1), dim=1)
         weights = alpha * inner[:, :-1] * transmittance.index_select(0, active)[:, None]
@@ -189,26 +198,52 @@ def render_rays(
     return RenderOutput(rgb, depth_sum / opacity.clamp_min(1e-10), opacity)
 
 
-def _samples(field: Field, origins, directions, t, delta, config: RenderConfig, deformation, frame):
-    """Opacity ``(A,S)`` and colour ``(A,S,3)`` of the samples at distances ``t (A,S)`` of rays ``(A,3)``
-    (bent, packed, queried; dropped samples get α = 0)."""
+def _with_background(model, box, origins, directions, t, delta, stratified: bool):
+    """The field's samples ``t, δ (R,S)`` merged in ray order with the background model's (outside ``box``: from the
+    camera to the box and beyond it; ``δ`` in contracted units) → ``t, δ`` and the mask of background samples,
+    ``(R, S + S_b)``. The order also holds when an edit grows the sampling box beyond ``box``."""
+    near, far = ray_box(origins, directions, box)
+    t_outside, delta_outside = model.samples(origins, directions, near, far, stratified)
+    order = torch.argsort(torch.cat([t, t_outside], 1), dim=1, stable=True)
+    mask = torch.cat([torch.zeros_like(t, dtype=torch.bool), torch.ones_like(t_outside, dtype=torch.bool)], 1)
+    return (
+        torch.cat([t, t_outside], 1).gather(1, order),
+        torch.cat([delta, delta_outside], 1).gather(1, order),
+        mask.gather(1, order),
+    )
+
+
+def _samples(field: Field, origins, directions, t, delta, config: RenderConfig, deformation, frame, outside=None):
+    """Opacity ``(A,S)`` and colour ``(A,S,3)`` of the samples at distances ``t (A,S)`` of rays ``(A,3)`` with bin
+    widths ``delta (A,S)`` (bent, packed, queried; dropped samples get α = 0). ``outside`` = (background model, mask
+    ``(A,S)`` of its samples): those are queried from the model at their unbent position, ``α = 1 − exp(−σ δ)``."""
     n_rays, n = t.shape
     points = (origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
+    delta = delta.reshape(-1)
+    if outside is not None:
+        model, mask = outside
+        far, near = torch.nonzero(mask.reshape(-1)).squeeze(1), torch.nonzero(~mask.reshape(-1)).squeeze(1)
+        sigma, far_rgb = model.query(points.index_select(0, far))
+        far_alpha = 1.0 - torch.exp(-sigma * delta.index_select(0, far))
+        points = points.index_select(0, near)
     bent = config.bend_view_directions and (field.kind == "sdf" or field.view_dependent)
     kept = _keep(field, points, deformation, frame, jacobian=bent)
-    ray = torch.div(kept.index, n, rounding_mode="floor")
+    index = kept.index if outside is None else near.index_select(0, kept.index)
+    ray = torch.div(index, n, rounding_mode="floor")
     ray_dirs = directions.index_select(0, ray)
     query_dirs = _canonical_directions(ray_dirs, kept.jacobian) if field.view_dependent else ray_dirs
     if field.kind == "sdf":
-        alpha, rgb = _sdf_alpha(field, kept, query_dirs, ray_dirs, delta.index_select(0, ray)[:, 0], config.cos_anneal)
+        alpha, rgb = _sdf_alpha(field, kept, query_dirs, ray_dirs, delta.index_select(0, index), config.cos_anneal)
     elif field.kind == "density":
         sigma, rgb = field.query(kept.points, query_dirs)
-        alpha = 1.0 - torch.exp(-sigma * delta.index_select(0, ray)[:, 0])
+        alpha = 1.0 - torch.exp(-sigma * delta.index_select(0, index))
     else:
         raise ValueError(f"{type(field).__name__}.kind = {field.kind!r}; expected 'density' or 'sdf'")
-    alpha = alpha.new_zeros(n_rays * n).index_copy(0, kept.index, alpha).view(n_rays, n)
-    colors = rgb.new_zeros(n_rays * n, 3).index_copy(0, kept.index, rgb).view(n_rays, n, 3)
-    return alpha, colors
+    alpha = alpha.new_zeros(n_rays * n).index_copy(0, index, alpha)
+    colors = rgb.new_zeros(n_rays * n, 3).index_copy(0, index, rgb)
+    if outside is not None:
+        alpha, colors = alpha.index_copy(0, far, far_alpha.to(alpha)), colors.index_copy(0, far, far_rgb.to(colors))
+    return alpha.view(n_rays, n), colors.view(n_rays, n, 3)
 
 
 def _sdf_alpha(

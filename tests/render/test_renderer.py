@@ -4,6 +4,7 @@ vacated space shows the background, moved parts outside the scene box are still 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -362,3 +363,36 @@ def test_non_rigid_bending_queries_normalised_bent_view_directions(kind, toleran
         assert (edited.opacity > 0.5).sum() > 30  # the object is in view
         assert (edited.opacity - expected.opacity).abs().max() < tolerance
         assert (edited.rgb - expected.rgb).abs().max() < tolerance
+
+
+def scenery(box: torch.Tensor, fg_scale: float, fg_shift: float) -> Field:
+    """A nerf field over ``box`` with random foreground content (density logits ``fg_scale · N(0,1) + fg_shift``)
+    and a background model of random content."""
+    from nerfedit_plugin.fields.nerf import NerfConfig
+
+    config = NerfConfig(resolution=16, upsample_steps=(), occupancy_resolution=0, background="field")
+    field = dataclasses.replace(config, background_resolution=16).setup(scene_bbox=box)
+    g = torch.Generator().manual_seed(4)
+    with torch.no_grad():
+        field.grid.table.normal_(0.0, 1.0, generator=g)
+        field.grid.table[:, 0] = field.grid.table[:, 0] * fg_scale + fg_shift
+        field.background.grid.table.normal_(0.0, 3.0, generator=g)
+    return field
+
+
+def test_deformations_never_touch_the_background_model(box, deformation):
+    """Background samples are composited at their unbent positions: an identity deformation renders the unedited
+    image, and moving the whole proxy clear of its rest place (over background content) changes nothing when the
+    foreground is empty."""
+    config, cams = RenderConfig(n_samples=64), cameras(2, target=(0.8, 0.0, 0.0), distance=5.0, size=24, fov=0.8)
+    field = scenery(box, 3.0, 0.0)
+    empty = scenery(box, 0.0, -40.0)
+    for i in range(2):
+        plain = render_image(field, cams, i, config)
+        edited = render_image(field, cams, i, config, deformation=deformation, frame=IDENTITY_FRAME)
+        assert plain.std() > 0.05
+        torch.testing.assert_close(edited, plain, atol=1e-6, rtol=0)
+        plain = render_image(empty, cams, i, config)
+        moved = render_image(empty, cams, i, config, deformation=deformation, frame=SHIFT_FRAME)
+        assert plain.std() > 0.05
+        torch.testing.assert_close(moved, plain, atol=1e-5, rtol=0)

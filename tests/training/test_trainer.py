@@ -79,6 +79,7 @@ def test_ray_pool_keeps_covered_pixels_and_drops_far_background():
     assert set(pool.tolist()) == expected
     assert len(_ray_pool(flat_dataset(alpha=alpha), margin=-1)) == 128
     assert len(_ray_pool(flat_dataset(), margin=3)) == 128  # no alpha: every pixel
+    assert len(_ray_pool(flat_dataset(alpha=torch.ones(2, 8, 8)), margin=3)) == 128  # opaque images: every pixel
 
 
 def test_cpu_clock_counts_the_training_thread_and_bad_clocks_are_rejected():
