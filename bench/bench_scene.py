@@ -159,6 +159,23 @@ def spec(mesh_vertices: np.ndarray, labels: np.ndarray, near: int, k: int) -> di
     }
 
 
+def scene_edit(run, mesh, spec: Path, out: Path, cache: Path):
+    """``run_edit`` of ``spec`` on ``mesh`` as ``nerfedit edit --run RUN`` runs it (the ``arap`` defaults, the run's
+    camera distance; proxies cached in ``cache``), timed → ``(seconds, EditResult)``."""
+    deformer = discover(DEFORMERS).config_class(DEFORMERS, "arap")()
+    return timed(
+        lambda: run_edit(
+            mesh,
+            deformer,
+            spec,
+            out,
+            camera_distance=run.camera_distance(),
+            cache_dir=cache / "proxies",
+            overwrite=True,
+        )
+    )
+
+
 def edits(cache: Path, data: Path, run) -> dict[int, Path]:
     """The edit folder of each k (rerun only when its spec changed)."""
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -168,7 +185,6 @@ def edits(cache: Path, data: Path, run) -> dict[int, Path]:
     labels = mesh.component_labels()
     bunny = scene.object("bunny")
     top = bunny.vertex_range.start + int(np.argmax(scene.part(bunny).vertices[:, 2]))
-    deformer = discover(DEFORMERS).config_class(DEFORMERS, "arap")()
     folders = {}
     for k in KS:
         out = cache / f"edit-k{k}"
@@ -180,17 +196,7 @@ def edits(cache: Path, data: Path, run) -> dict[int, Path]:
             and (out / path.name).read_text() == text
         ):
             path.write_text(text)
-            seconds, result = timed(
-                lambda out=out, path=path: run_edit(
-                    mesh,
-                    deformer,
-                    path,
-                    out,
-                    camera_distance=run.camera_distance(),
-                    cache_dir=cache / "proxies",
-                    overwrite=True,
-                )
-            )
+            seconds, result = scene_edit(run, mesh, path, out, cache)
             tets = sum(i.get("own_tets", 0) for o in result.report["objects"] for i in o["instances"])
             print(f"   edit k = {k}: {seconds:.1f} s, {tets} instance tets, warnings {result.report['warnings']}")
         folders[k] = out

@@ -33,17 +33,15 @@ BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH.parent))
 sys.path.insert(0, str(BENCH))
 
-from bench_scene import CACHE, dataset, trained_run  # noqa: E402
+from bench_scene import CACHE, dataset, scene_edit, trained_run  # noqa: E402
 from timing import timed  # noqa: E402
 
 from nerfedit_plugin.bending.scene_deformation import load_deformation  # noqa: E402
 from nerfedit_plugin.data.datasets import load_dataset  # noqa: E402
 from nerfedit_plugin.data.scene import read_scene, scene_mesh  # noqa: E402
 from nerfedit_plugin.data.synthetic import render_mesh  # noqa: E402
-from nerfedit_plugin.edit.job import run_edit  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.io.run import extract_mesh  # noqa: E402
-from nerfedit_plugin.registry import DEFORMERS, discover  # noqa: E402
 from nerfedit_plugin.render.views import default_render_config, render_views  # noqa: E402
 
 SLIDE = (1.2, 0.0, 0.0)
@@ -75,7 +73,6 @@ def main() -> None:
     scene = read_scene(data)
     bunny = scene.part(scene.object("bunny"))
     top = bunny.vertices[np.argmax(bunny.vertices[:, 2])]
-    deformer = discover(DEFORMERS).config_class(DEFORMERS, "arap")()
     test = load_dataset(data, "test")
     views = list(range(min(args.views, len(test.cameras))))
     cameras = test.cameras[torch.as_tensor(views)]
@@ -110,17 +107,7 @@ def main() -> None:
         path = args.cache / f"edit-quality-{vacated}.json"
         path.write_text(json.dumps(spec, indent=1))
         out = args.cache / f"edit-quality-{vacated}"
-        seconds, result = timed(
-            lambda out=out, path=path: run_edit(
-                mesh,
-                deformer,
-                path,
-                out,
-                camera_distance=run.camera_distance(),
-                cache_dir=args.cache / "proxies",
-                overwrite=True,
-            )
-        )
+        seconds, result = scene_edit(run, mesh, path, out, args.cache)
         selected = result.report["objects"][0]["surface"]["vertices"]
         print(f"edit ({vacated}): {seconds:.1f} s, {selected} of {mesh.n_vertices} extracted vertices selected")
         deformation = load_deformation(out / "deformation.npz")
