@@ -9,11 +9,14 @@ OpenCV → OpenGL, normalised). The recovered cameras are aligned to the true on
 their centres (Umeyama 1991) and compared: rotation error (degrees, the angle of ``R_trueᵀ R_align R_sfm``) and
 centre error as a fraction of the scene size (the diagonal of the scene's foreground box). Targets: ≤ 1° and ≤ 1 %.
 
-With ``--seconds S`` the ``nerf`` field is then trained for S CPU seconds on the recovered poses (the workspace) and
-on the true poses (a nerfstudio ``transforms.json`` of the same images, same held-out split: every 8th image), and
-the held-out PSNRs are compared (target: recovered ≥ true − 1 dB).
+With ``--seconds S`` the ``nerf`` defaults are then trained for S CPU seconds, on the images downscaled by
+``--downscale``, on the recovered poses (the workspace) and on the true poses (a nerfstudio ``transforms.json`` of
+the same registered images with their true cameras mapped into the recovered model's normalised frame, with its
+foreground box: same images, same held-out split — every 8th —, same frame and box), and the PSNRs over all held-out
+views are compared (target: recovered ≥ true − 1 dB). The run on the recovered poses is then extracted, edited (the
+bunny moved by an ``objects`` spec) and rendered through the command line (:func:`edit_capture_run`).
 
-Usage: ``python bench/bench_capture.py [--views 48] [--resolution 256] [--seconds 0] [--out DIR]``.
+Usage: ``python bench/bench_capture.py [--views 48] [--resolution 256] [--seconds 0] [--downscale 2] [--out DIR]``.
 """
 
 from __future__ import annotations
@@ -73,13 +76,22 @@ def umeyama(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, 
     return scale, rotation, mu_t - scale * rotation @ mu_s
 
 
-def camera_errors(workspace: Path, truth: dict, scene_size: float) -> dict:
-    """Read the workspace's model as nerfedit does, align it to ``truth`` and measure (see the module docstring)."""
+def align(workspace: Path, truth: dict) -> tuple:
+    """Read the workspace's model as nerfedit does (normalised) and align it to ``truth``: the recovered
+    transforms, the true OpenGL camera-to-world of each registered image (in the model's order) and the similarity
+    ``(s, R, t)`` taking the model's normalised frame to the true one."""
     recovered = read_transforms(workspace)
     names = [p.name for p in recovered.image_paths]
     c2w = recovered.cameras.c2w.double().numpy()
     true_c2w = np.stack([truth[n].c2w[0].double().numpy() for n in names])
-    scale, rotation, shift = umeyama(c2w[:, :3, 3], true_c2w[:, :3, 3])
+    return recovered, true_c2w, umeyama(c2w[:, :3, 3], true_c2w[:, :3, 3])
+
+
+def camera_errors(workspace: Path, truth: dict, scene_size: float) -> dict:
+    """Align the workspace's model to ``truth`` and measure (see the module docstring)."""
+    recovered, true_c2w, (scale, rotation, shift) = align(workspace, truth)
+    names = [p.name for p in recovered.image_paths]
+    c2w = recovered.cameras.c2w.double().numpy()
     centres = scale * c2w[:, :3, 3] @ rotation.T + shift
     relative = np.einsum("nji,jk,nkl->nil", true_c2w[:, :3, :3], rotation, c2w[:, :3, :3])
     angles = np.degrees(np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)))
@@ -97,38 +109,92 @@ def camera_errors(workspace: Path, truth: dict, scene_size: float) -> dict:
 
 
 def true_pose_dataset(out: Path, workspace: Path, truth: dict) -> Path:
-    """A nerfstudio ``transforms.json`` of the workspace's images with their true cameras (sorted by name, so the
-    held-out split is the workspace's)."""
+    """A nerfstudio ``transforms.json`` of the registered images with their true cameras and intrinsics, expressed in
+    the recovered model's normalised frame (the inverse of the alignment) with its foreground box as ``aabb``: same
+    images, same order (so the same held-out split: every 8th), same frame and box; only the poses differ."""
     from nerfedit_plugin.data.cameras import Cameras
 
-    names = sorted(truth)
-    cams = [truth[n] for n in names]
-    cameras = Cameras(
-        np.concatenate([c.c2w.numpy() for c in cams]),
-        np.concatenate([c.fx.numpy() for c in cams]),
-        np.concatenate([c.fy.numpy() for c in cams]),
-        np.concatenate([c.cx.numpy() for c in cams]),
-        np.concatenate([c.cy.numpy() for c in cams]),
-        cams[0].width,
-        cams[0].height,
-    )
+    recovered, true_c2w, (scale, rotation, shift) = align(workspace, truth)
+    names = [p.name for p in recovered.image_paths]
+    c2w = true_c2w.copy()
+    c2w[:, :3, :3] = rotation.T @ true_c2w[:, :3, :3]
+    c2w[:, :3, 3] = (true_c2w[:, :3, 3] - shift) @ rotation / scale
+    intrinsics = [np.array([float(getattr(truth[n], key)[0]) for n in names]) for key in ("fx", "fy", "cx", "cy")]
+    cameras = Cameras(c2w, *intrinsics, truth[names[0]].width, truth[names[0]].height)
     folder = out / "true-poses"
     folder.mkdir(exist_ok=True)
     relative = [str(Path("..") / workspace.name / "images" / n) for n in names]
-    (folder / "transforms.json").write_text(json.dumps(nerfstudio_transforms(cameras, relative)))
+    transforms = nerfstudio_transforms(cameras, relative)
+    transforms["aabb"] = np.asarray(recovered.meta["aabb"]).tolist()
+    (folder / "transforms.json").write_text(json.dumps(transforms))
     return folder
 
 
-def train_psnr(data: Path, out: Path, seconds: float) -> float:
-    """Held-out PSNR of the ``nerf`` field trained for ``seconds`` CPU seconds on ``data``."""
+def train_psnr(data: Path, out: Path, seconds: float, downscale: int) -> float:
+    """Held-out PSNR (every held-out view) of the ``nerf`` defaults trained for ``seconds`` CPU seconds on ``data``,
+    its images downscaled by ``downscale``."""
     from nerfedit_plugin.fields.nerf import NerfConfig
     from nerfedit_plugin.io.run import train_run
 
     config = NerfConfig()
     config.train.max_seconds, config.train.clock, config.train.progress = seconds, "cpu", False
-    config.train.eval_every_seconds = 0
-    _, log = train_run("nerf", config, data, out, overwrite=True, device="cpu")
+    config.train.eval_every_seconds, config.train.eval_views = 0, 1000
+    _, log = train_run("nerf", config, data, out, overwrite=True, device="cpu", downscale=downscale)
     return float(log["eval"][-1][1])
+
+
+def nerfedit(*argv) -> float:
+    """Run ``nerfedit ARGV --overwrite`` in this process; its wall seconds (a failure ends the bench)."""
+    from nerfedit_plugin.cli.app import main as cli
+
+    start = time.perf_counter()
+    if cli([str(a) for a in argv] + ["--overwrite"]) != 0:
+        raise SystemExit(f"nerfedit {argv[0]} failed")
+    return time.perf_counter() - start
+
+
+def edit_capture_run(out: Path, run: Path, workspace: Path, truth: dict, downscale: int, shift: float = 0.25) -> dict:
+    """The rest of the workflow on the run trained on the recovered poses, through the command line: extract the
+    scene's objects (``--drop-plane --drop-floaters 0.05``), move the bunny by ``shift`` × the foreground box's
+    size away from the cow (an ``objects`` spec selecting the component of the mesh vertex nearest to the bunny's
+    true centre, mapped into the run's frame by the alignment), and render the held-out views (downscaled by
+    ``downscale``) unedited and edited. Returns each step's wall seconds, the mesh's vertex count and the fraction
+    of held-out pixels the edit changed (by more than 10/255)."""
+    from nerfedit_plugin.data.datasets import read_image
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    recovered, _, (scale, rotation, offset) = align(workspace, truth)
+    scene = json.loads((out / "scene" / "scene.json").read_text())
+    bunny, cow = (  # the objects' true centres in the run's (normalised) frame
+        rotation.T @ (np.asarray(o["box"]).mean(0) - offset) / scale for o in scene["objects"]
+    )
+    box = np.asarray(recovered.meta["aabb"])
+    away = (bunny - cow) / np.linalg.norm(bunny - cow) * shift * float(np.linalg.norm(box[1] - box[0]))
+    result = {
+        "extract_s": nerfedit("extract", "--run", run, "--resolution", 192, "--drop-plane", "--drop-floaters", 0.05)
+    }
+    mesh = SurfaceMesh.load(run / "mesh.ply")
+    near = mesh.vertices[np.argmin(np.linalg.norm(mesh.vertices - bunny, axis=1))]  # a point picked on the mesh
+    spec = {
+        "objects": [
+            {
+                "name": "bunny",
+                "select": {"component": {"near": near.tolist(), "drop_plane": True}},
+                "place": {"translate": away.tolist()},
+            }
+        ]
+    }
+    (out / "move_bunny.json").write_text(json.dumps(spec))
+    render = ["render", "--run", run, "--cameras", workspace, "--downscale", downscale]
+    result["edit_s"] = nerfedit("edit", "--run", run, "--edit", out / "move_bunny.json", "--out", out / "edit")
+    result["render_unedited_s"] = nerfedit(*render, "--out", out / "views")
+    edited = out / "edit" / "deformation.npz"
+    result["render_edited_s"] = nerfedit(*render, "--deformation", edited, "--out", out / "views-edited")
+    changed = [
+        np.abs(read_image(path)[0] - read_image(out / "views-edited" / path.name)[0]).max(-1) > 10 / 255
+        for path in sorted((out / "views").glob("*.png"))
+    ]
+    return {**result, "mesh_vertices": mesh.n_vertices, "edited_pixels": float(np.mean(changed))}
 
 
 def main() -> None:
@@ -136,6 +202,7 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=48)
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--seconds", type=float, default=0.0)
+    parser.add_argument("--downscale", type=int, default=2, help="train on the images downscaled by this factor")
     parser.add_argument("--out", type=Path, default=Path("/tmp/nerfedit-bench-capture"))
     parser.add_argument("--reuse", action="store_true", help="keep the workspace of an earlier run (no new SfM)")
     args = parser.parse_args()
@@ -150,9 +217,10 @@ def main() -> None:
     timing = {"sfm_cpu_s": time.process_time() - cpu, "sfm_wall_s": time.perf_counter() - wall}
     result = {"views": args.views, "resolution": args.resolution, **timing, **camera_errors(workspace, truth, size)}
     if args.seconds > 0:
-        result["psnr_recovered"] = train_psnr(workspace, args.out / "run-recovered", args.seconds)
         truth_data = true_pose_dataset(args.out, workspace, truth)
-        result["psnr_true"] = train_psnr(truth_data, args.out / "run-true", args.seconds)
+        result["psnr_recovered"] = train_psnr(workspace, args.out / "run-recovered", args.seconds, args.downscale)
+        result["psnr_true"] = train_psnr(truth_data, args.out / "run-true", args.seconds, args.downscale)
+        result["edit"] = edit_capture_run(args.out, args.out / "run-recovered", workspace, truth, args.downscale)
     print(json.dumps(result, indent=2))
 
 

@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "eval": "evaluate",
     "view": "view",
     "generate": "generate",
+    "process": "process",
     "demo": "demo",
     "plugins": "plugins",
 }

@@ -3,7 +3,9 @@
 From sparse points when there are enough: a point belongs to the foreground when it lies inside the view frustum of
 at least :data:`VIEW_FRACTION` of the cameras (what most views look at, not the far background one camera grazes);
 the box spans the :data:`QUANTILE`…(1 − :data:`QUANTILE`) quantiles of those points per axis (robust to stray
-points), grown by :data:`MARGIN` of its size on every side. Otherwise from the frustums alone:
+points); a side shorter than :data:`MIN_SIDE` × the longest grows to it towards the cameras (objects on a floor:
+SIFT finds the textured floor, the objects stand up from it towards the cameras); then the box grows by
+:data:`MARGIN` of its size on every side. Otherwise from the frustums alone:
 :func:`estimate_scene_bbox`, a ball every camera sees whole.
 """
 
@@ -17,6 +19,7 @@ from nerfedit_plugin.data.cameras import Cameras
 VIEW_FRACTION = 0.5
 QUANTILE = 0.01
 MARGIN = 0.1
+MIN_SIDE = 0.5
 MIN_POINTS = 20
 """Fewer foreground points than this: the frustum estimate is used instead."""
 
@@ -59,6 +62,9 @@ def foreground_box(cameras: Cameras, points: np.ndarray | None = None) -> np.nda
         foreground = points[in_view_counts(cameras, points) >= VIEW_FRACTION * len(cameras)]
         if len(foreground) >= MIN_POINTS:
             low, high = np.quantile(foreground, [QUANTILE, 1.0 - QUANTILE], axis=0)
+            short = np.maximum(MIN_SIDE * (high - low).max() - (high - low), 0.0)
+            towards = cameras.c2w[:, :3, 3].double().cpu().numpy().mean(0) > (low + high) / 2
+            high, low = high + np.where(towards, short, 0.0), low - np.where(towards, 0.0, short)
             margin = MARGIN * (high - low).max()
             return np.stack([low - margin, high + margin])
     return estimate_scene_bbox(cameras).double().cpu().numpy()

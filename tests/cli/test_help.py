@@ -84,6 +84,7 @@ def _required(name: str) -> list[str]:
         "render": ["--run", "r", "--cameras", "c", "--out", "o"],
         "eval": ["--pred", "p", "--gt", "g"],
         "generate": ["--out", "o"],
+        "process": ["--video", "v.mp4", "--out", "o"],
     }.get(name, [])
 
 
