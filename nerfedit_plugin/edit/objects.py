@@ -302,10 +302,15 @@ def _overlaps(placed: list[_Placed], objects: list[SceneObject]) -> list[dict]:
 
 
 def _scene_frames(
-    mesh: SurfaceMesh, selected: list[np.ndarray], spec: ObjectsSpec, placed: list[list[_Placed]], n: int
+    mesh: SurfaceMesh,
+    selected: list[np.ndarray],
+    surfaces: list[SurfaceMesh],
+    spec: ObjectsSpec,
+    placed: list[list[_Placed]],
+    n: int,
 ):
     """The edited scene's surface per frame: unselected geometry as it is, each object's original in its place
-    (dropped when removed), copies appended (faces and colours of their object)."""
+    (dropped when removed), copies appended (faces and colours of their object's ``surfaces`` entry)."""
     keep = np.ones(mesh.n_vertices, dtype=bool)
     for obj, idx in zip(spec.objects, selected):
         keep[idx] = not obj.removed
@@ -314,8 +319,7 @@ def _scene_frames(
     for f in range(n):
         vertices, faces, colors = [base.vertices.copy()], [base.faces], [base.vertex_colors]
         offset = len(base.vertices)
-        for obj, idx, instances in zip(spec.objects, selected, placed):
-            part = mesh.submesh(np.isin(np.arange(mesh.n_vertices), idx))[0]
+        for obj, idx, part, instances in zip(spec.objects, selected, surfaces, placed):
             for k, inst in enumerate(instances):
                 frame = inst.surface[min(f, len(inst.surface) - 1)]
                 if k == 0 and not obj.removed:
@@ -360,12 +364,13 @@ def run_objects_edit(
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
         spec = load_objects_spec(edit, default_deformer, source_to_world)
         selected = spec.resolve(rest)
-    objects, instances, placed, reports, patches = [], [], [], [], []
+    objects, instances, placed, reports, patches, surfaces = [], [], [], [], [], []
     with atomic_dir(out, overwrite=overwrite) as stage:
         for obj, idx in zip(spec.objects, selected):
             mask = np.zeros(rest.n_vertices, dtype=bool)
             mask[idx] = True
             surface, others = rest.submesh(mask)[0], rest.submesh(~mask)[0]
+            surfaces.append(surface)
             with clock.stage(f"proxy {obj.name}"):
                 proxy, cached = cached_proxy(surface, proxy_config, cache_dir, camera_distance)
             with clock.stage(f"edit {obj.name}"):
@@ -402,7 +407,7 @@ def run_objects_edit(
                 base.chain(stage / "deformation.npz")
             flat = [p for runs in placed for p in runs]
             overlaps = _overlaps(flat, objects)
-            scenes = _scene_frames(rest, selected, spec, placed, n_frames)
+            scenes = _scene_frames(rest, selected, surfaces, spec, placed, n_frames)
             names = ["deformed_mesh.ply"] if n_frames == 1 else [f"deformed_mesh_{i:04d}.ply" for i in range(n_frames)]
             for name, scene in zip(names, scenes):
                 scene.save(stage / name)
