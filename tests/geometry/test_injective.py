@@ -5,7 +5,15 @@ import pytest
 import scipy.sparse as sp
 
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.injective import InjectiveSolver, _element_hessians, flip_free_step
+from nerfedit_plugin.geometry import injective
+from nerfedit_plugin.geometry.injective import (
+    InjectiveSolver,
+    _element_hessians,
+    _first_flattening,
+    _relative_motions,
+    _svd3,
+    flip_free_step,
+)
 from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets, tet_signed_volumes
 
 
@@ -72,6 +80,92 @@ def test_analytic_eigensystem_matches_the_projected_9x9_hessian():
     u, sigma, vt = np.linalg.svd(jac)
     got = _element_hessians(u, sigma, vt, scale, b)
     assert np.abs(got - expected).max() <= 1e-9 * np.abs(expected).max()
+
+
+def distorted(cells=3, spread=0.12, seed=3):
+    """A grid, its soft-handle solver and positions far from rest with every tet positively oriented (some twist
+    modes' eigenvalues negative): tets whose random push inverts them are pushed back to rest."""
+    vertices, tets = grid(cells)
+    solver = InjectiveSolver(vertices, tets, selection(np.arange(4), len(vertices)), 10.0)
+    x = vertices + np.random.default_rng(seed).normal(0, spread, vertices.shape)
+    while (bad := tet_signed_volumes(x, tets) <= 0).any():
+        x[np.unique(tets[bad])] = vertices[np.unique(tets[bad])]
+    return vertices, tets, solver, x
+
+
+def test_compiled_svd_matches_lapack():
+    """The one-sided Jacobi SVD of the Newton kernel: reconstructs the matrix, orthonormal factors, V a rotation,
+    U one on positively oriented matrices, the singular values of LAPACK, also at a condition number of 1e7."""
+    rng = np.random.default_rng(5)
+    mild = np.eye(3) + rng.normal(0, 0.5, (500, 3, 3))
+    rotations = [np.linalg.qr(rng.normal(size=(500, 3, 3)))[0] for _ in range(2)]
+    stiff = rotations[0] @ (10.0 ** rng.uniform(-6, 1, (500, 3, 1)) * rotations[1])
+    for matrices in (mild, stiff):
+        for a in matrices:
+            u, s, v = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+            _svd3(a, u, s, v)
+            assert np.abs(u * s @ v.T - a).max() <= 1e-14 * np.abs(a).max()
+            assert np.abs(u.T @ u - np.eye(3)).max() < 1e-14 and np.abs(v.T @ v - np.eye(3)).max() < 1e-14
+            assert np.linalg.det(v) == pytest.approx(1.0) and np.linalg.det(u) == pytest.approx(
+                np.sign(np.linalg.det(a))
+            )
+            reference = np.linalg.svd(a, compute_uv=False)
+            assert np.sort(s)[::-1] == pytest.approx(reference, rel=1e-15 * reference[0] / reference[-1] + 1e-13)
+
+
+def test_compiled_newton_system_and_energy_match_numpy():
+    """Oracle: the Newton matrix assembled densely from the numpy eigensystem (:func:`_element_hessians` on LAPACK's
+    SVD) and the gradient ``b_c · (∂E/∂J)ᵀ`` summed per vertex, plus the constraint terms, and the energy from numpy's
+    ``det`` and ``inv``; far from rest, where the projection matters. Inverted positions have infinite energy."""
+    vertices, tets, solver, x = distorted()
+    targets = vertices[:4] + 0.1
+    matrix, gradient = solver._newton_system(x, targets)
+    jac = solver.jacobians(x)
+    u, sigma, vt = np.linalg.svd(jac)
+    scale, b = 0.25 * solver.volumes, solver.gradient_map
+    assert (
+        2 - 2 * (sigma[:, 0] ** 2 - sigma[:, 0] * sigma[:, 1] + sigma[:, 1] ** 2) / (sigma[:, 0] * sigma[:, 1]) ** 3 < 0
+    ).any()
+    element = _element_hessians(u, sigma, vt, scale, b)
+    n, c = len(vertices), solver.constraints.toarray()
+    dofs = (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
+    expected = np.zeros((3 * n, 3 * n))
+    for rows, block in zip(dofs, element):
+        expected[np.ix_(rows, rows)] += block
+    expected += 2 * solver.constraint_weight * np.kron(c.T @ c, np.eye(3))
+    expected += np.eye(3 * n) * injective.RIDGE * np.trace(expected) / (3 * n)
+    assert np.abs(matrix.toarray() - expected).max() <= 1e-10 * np.abs(expected).max()
+    stress = (u * (scale[:, None] * (2 * sigma - 2 / sigma**3))[:, None, :]) @ vt
+    numpy_gradient = np.zeros((n, 3))
+    np.add.at(numpy_gradient, tets, b @ stress.transpose(0, 2, 1))
+    numpy_gradient += 2 * solver.constraint_weight * c.T @ (c @ x - targets)
+    assert np.abs(gradient - numpy_gradient.ravel()).max() <= 1e-10 * np.abs(numpy_gradient).max()
+    inverse = np.linalg.inv(jac)
+    distortion = np.einsum("kab,kab->k", jac, jac) + np.einsum("kab,kab->k", inverse, inverse) - 6
+    penalty = c @ x - targets
+    numpy_energy = 0.25 * solver.volumes @ distortion + solver.constraint_weight * np.sum(penalty**2)
+    assert solver.energy(x, targets) == pytest.approx(numpy_energy, rel=1e-12)
+    assert solver.energy(vertices[[0, 2, 1, *range(3, n)]], targets) == np.inf
+
+
+def test_compiled_maximal_step_matches_flip_free_step_and_bisection():
+    """The solver's maximal flip-free step (compiled candidates, :func:`_relative_motions`) equals
+    :func:`flip_free_step` on the same edge matrices, and a bisection on the smallest tet volume along the step
+    brackets it: every tet positive just before it, one flat at it."""
+    _, tets, solver, x = distorted(4, 0.05, seed=7)
+    rng = np.random.default_rng(8)
+    for spread in (0.02, 0.2, 2.0):
+        step = rng.normal(0, spread, x.shape)
+        edges, directions = solver.edge_matrices(x), solver.edge_matrices(step)
+        for limit in (np.inf, 1 / injective.SAFE_STEP):
+            got = _first_flattening(_relative_motions(x, step, tets, limit))
+            assert got == pytest.approx(flip_free_step(edges, directions, limit), rel=1e-12)
+        alpha = _first_flattening(_relative_motions(x, step, tets, np.inf))
+        low, high = 0.0, alpha * 1.5  # bisection oracle: the first α where a tet's volume reaches 0
+        for _ in range(60):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if tet_signed_volumes(x + middle * step, tets).min() > 0 else (low, middle)
+        assert alpha == pytest.approx(high, rel=1e-9)
 
 
 def test_flip_free_step_is_where_the_first_tet_flattens():
