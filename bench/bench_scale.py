@@ -4,10 +4,16 @@
 449k, 1.8M; cached in /tmp), ``configs/arap_bunny_head.json``, ``nerfedit_plugin.edit.job.run_edit`` with the
 default ARAP deformer and lift. Each case runs in its own subprocess (peak RSS per case), first with an empty proxy
 cache (cold), then again with the cache it filled (warm). Printed per row: the stage times of ``timings_s``, the
-folded faces, inverted tets, peak RSS and µs per vertex, and the ratio of µs per vertex to the 112k anchor
-measured in the same run (the anchor case runs whenever any case does).
+folded faces, inverted tets, peak RSS, the case's CPU time (all threads, imports included), µs per vertex (of
+the stage times) and its ratio to the 112k anchor measured in the same run (the anchor runs whenever any case
+does).
 
-Usage: ``python bench/bench_scale.py [--levels 0 1 2 3]``
+``--solver`` instead times the ARAP solver alone in CPU time (``time.process_time``, all threads): the bind
+(``ArapSolver``), the solve with the deformer's defaults (iterations, E ÷ the reference energy :data:`REFERENCE`
+− 1), and a run without stopping test: the iterations to reach E ≤ (1 + 10⁻³) E_ref and their CPU time (the
+run's CPU per iteration × iterations).
+
+Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver]``
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +32,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 EDIT = ROOT / "configs" / "arap_bunny_head.json"
 ANCHOR = 1
+#: converged ARAP energies of the head edit (solver at tolerance 1e-10 from rest), by subdivision level
+REFERENCE = {0: 9.7475e-4, 1: 4.5282e-4, 2: 1.8885e-4}
+REACH_ITERATIONS = 600
 STAGES = ("load", "bind", "deform", "proxy", "lift", "write")
 
 
@@ -62,6 +72,7 @@ def run_case(mesh: str, cache: str) -> None:
                 "folded": frame["flipped_surface_faces"],
                 "inverted": frame["inverted_tets"],
                 "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                "cpu_s": time.process_time(),
             }
         )
     )
@@ -73,14 +84,53 @@ def measure(level: int, cache: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def solver_case(level: int) -> None:
+    """The ARAP solver alone on one level: prints its table row (CPU seconds)."""
+    from deformers.arap import ArapConfig
+    from nerfedit_plugin.edit.spec import load_edit_spec
+    from nerfedit_plugin.geometry.arap import ArapSolver
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    mesh = SurfaceMesh.load(level_mesh(level))
+    handles, targets = load_edit_spec(EDIT).handle_targets(mesh.vertices, mesh.faces)
+    start = time.process_time()
+    solver = ArapSolver(mesh.vertices, mesh.faces, fixed=handles)
+    bind = time.process_time() - start
+    config, reference = ArapConfig(), REFERENCE[level]
+    start = time.process_time()
+    result = solver.solve(targets[0], max_iterations=config.max_iterations, tolerance=config.tolerance)
+    deform = time.process_time() - start
+    assert np.array_equal(result.vertices[handles], targets[0])
+    start = time.process_time()
+    long = solver.solve(targets[0], max_iterations=REACH_ITERATIONS, tolerance=0.0)
+    per_iteration = (time.process_time() - start) / max(long.iterations, 1)
+    reached = np.flatnonzero(np.array(long.energies) <= (1 + 1e-3) * reference)
+    reach = f"{reached[0]} | {reached[0] * per_iteration:.1f}" if len(reached) else f"> {long.iterations} | –"
+    print(
+        f"| {len(mesh.vertices)} | {bind:.2f} | {deform:.2f} | {result.iterations} | "
+        f"{result.energies[-1] / reference - 1:.1e} | {reach} | {1e3 * per_iteration:.0f} |",
+        flush=True,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels", type=int, nargs="+", default=[0, 1, 2, 3], help="Loop subdivision levels")
+    parser.add_argument("--solver", action="store_true", help="time the ARAP solver alone (CPU time)")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--cache", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case:
         run_case(args.case, args.cache)
+        return
+    if args.solver:
+        print(
+            "| vertices | bind CPU s | deform CPU s | iterations | E/E_ref − 1 | iterations to 1e-3 | CPU s to 1e-3 | "
+            "ms/iteration |"
+        )
+        print("|" + "---|" * 8)
+        for level in args.levels:
+            solver_case(level)
         return
     rows = []
     for level in sorted(set(args.levels) | {ANCHOR}):
@@ -89,10 +139,12 @@ def main() -> None:
                 rows.append((level, state, measure(level, cache)))
     anchor = {state: r for level, state, r in rows if level == ANCHOR}
     print(
-        "| vertices | cache | " + " | ".join(STAGES) + " | total s | folded | inverted | peak RSS MB | µs/vertex |"
+        "| vertices | cache | "
+        + " | ".join(STAGES)
+        + " | total s | folded | inverted | peak RSS MB | CPU s | µs/vertex |"
         " ÷ 112k |"
     )
-    print("|" + "---|" * (len(STAGES) + 8))
+    print("|" + "---|" * (len(STAGES) + 9))
     for _level, state, r in rows:
         total = sum(r["timings_s"].values())
         per_vertex = 1e6 * total / r["vertices"]
@@ -100,7 +152,7 @@ def main() -> None:
         stages = " | ".join(f"{r['timings_s'].get(s, 0.0):.2f}" for s in STAGES)
         print(
             f"| {r['vertices']} | {state} | {stages} | {total:.1f} | {r['folded']} | {r['inverted']} | "
-            f"{r['rss_mb']:.0f} | {per_vertex:.1f} | {per_vertex / reference:.2f} |"
+            f"{r['rss_mb']:.0f} | {r['cpu_s']:.1f} | {per_vertex:.1f} | {per_vertex / reference:.2f} |"
         )
 
 

@@ -4,8 +4,10 @@
 one rotation ``R_g`` per rotation group ``g`` (``energy``: ``spokes_and_rims``, ``spokes`` or ``elements``),
 ``E(X) = min_R Σ_g Σ_{(i,j)∈g} w_ij ‖(x_i − x_j) − R_g (p_i − p_j)‖²  (+ w_c ‖C X − T‖², soft constraints C (m,N))``.
 Fixed vertices are eliminated exactly; local/global iterations share one prefactored sparse Cholesky and are
-Anderson-accelerated under an energy guard (the energy never increases). The derivation and the solver's choices:
-docs/method.md, "Surface editing: ARAP".
+Anderson-accelerated under an energy guard (the energy never increases). Covariances, rotations, energy and the
+global step's right-hand side come from the elements in compiled kernels (:mod:`._arap_kernel`: no ``(N, 3G)``
+matrix; spokes-and-rims pools per-triangle covariances ``S_v = Σ_{f∋v} S_f``). The derivation and the solver's
+choices: docs/method.md, "Surface editing: ARAP".
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry import _arap_kernel as _kernel
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
 
 ENERGIES = ("spokes_and_rims", "spokes", "elements")
@@ -76,106 +79,34 @@ def fit_rotations(stacked: np.ndarray) -> np.ndarray:
     """stacked (3G,3) float64 → (3G,3) float64: the rotations maximising ``tr(R_g S_g)`` for ``G`` covariances
     stacked ``(3G, 3)`` (row ``a·G + g`` = row a of ``S_g``), returned as the ``R_gᵀ`` stacked the same way.
 
-    Horn's quaternion method, vectorised: R_g is the unit quaternion of the largest eigenvalue λ of the traceless
-    symmetric 4×4 matrix N(S_g) (always a proper rotation, rank-deficient S included). λ is the largest root of
-    ``det(N − λI) = λ⁴ − 2‖S‖²λ² − 8 det(S) λ + det N``, found by Laguerre's method from the upper bound
-    ``√3‖S‖_F`` (monotone, cubic convergence for real-rooted polynomials); the eigenvector is the largest column of
-    ``adj(N − λI)``. Groups whose top eigenvalue is nearly double (rotation ill-determined) use
-    :func:`fit_rotations_numpy`; empty groups get the identity.
+    Horn's quaternion method, compiled per group (:func:`_rotations`): R_g is the unit quaternion of the largest
+    eigenvalue λ of the traceless symmetric 4×4 matrix N(S_g) (always a proper rotation, rank-deficient S included).
+    λ is the largest root of ``det(N − λI) = λ⁴ − 2‖S‖²λ² − 8 det(S) λ + det N`` (S scaled to ``‖S‖_F = 1``), found
+    by Laguerre's method from the upper bound ``√3`` (monotone, cubic convergence for real-rooted polynomials); the
+    eigenvector is the largest column of ``adj(N − λI)``. Groups whose top eigenvalue is nearly double (rotation
+    ill-determined) use :func:`fit_rotations_numpy`; empty groups get the identity.
     """
     g = len(stacked) // 3
-    s = np.ascontiguousarray(stacked.reshape(3, g, 3).transpose(0, 2, 1))  # s[a, b] = S[a, b] over groups
-    scale = np.sqrt(np.einsum("abg,abg->g", s, s))
-    empty = scale == 0
-    s /= np.where(empty, 1.0, scale)  # ‖S‖_F = 1
-    (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = s
-    diagonal = (xx + yy + zz, xx - yy - zz, yy - xx - zz, zz - xx - yy)
-    off = (yz - zy, zx - xz, xy - yx, xy + yx, zx + xz, yz + zy)  # N01 N02 N03 N12 N13 N23
-    c1 = -8.0 * (xx * (yy * zz - yz * zy) - xy * (yx * zz - yz * zx) + xz * (yx * zy - yy * zx))
-    s0, s1, s2, s3, s4, s5, k0, k1, k2, k3, k4, k5 = _minors_4x4(*diagonal, *off)
-    c0 = s0 * k5 - s1 * k4 + s2 * k3 + s3 * k2 - s4 * k1 + s5 * k0
-    lam = np.full(g, np.sqrt(3.0))
-    for _ in range(40):
-        l2 = lam * lam
-        p = (l2 - 2.0) * l2 + c1 * lam + c0
-        dp = (4.0 * l2 - 4.0) * lam + c1
-        disc = np.sqrt(np.maximum(3.0 * (3.0 * dp * dp - 4.0 * p * (12.0 * l2 - 4.0)), 0.0))
-        denominator = dp + disc
-        resolved = (p > 1e-14) & (denominator > 0)  # below ~1e-14, p is rounding noise
-        step = np.where(resolved, 4.0 * p / np.where(resolved, denominator, 1.0), 0.0)
-        lam -= step
-        if step.max() <= 1e-14:
-            break
-    m00, m11, m22, m33 = (d - lam for d in diagonal)
-    n01, n02, n03, n12, n13, n23 = off
-    s0, s1, s2, s3, s4, s5, k0, k1, k2, k3, k4, k5 = _minors_4x4(m00, m11, m22, m33, *off)
-    columns = (  # columns[j] = column j of adj(N − λI) = (Π gaps) q q_j
-        (
-            m11 * k5 - n12 * k4 + n13 * k3,
-            -n01 * k5 + n12 * k2 - n13 * k1,
-            n01 * k4 - m11 * k2 + n13 * k0,
-            -n01 * k3 + m11 * k1 - n12 * k0,
-        ),
-        (
-            -n01 * k5 + n02 * k4 - n03 * k3,
-            m00 * k5 - n02 * k2 + n03 * k1,
-            -m00 * k4 + n01 * k2 - n03 * k0,
-            m00 * k3 - n01 * k1 + n02 * k0,
-        ),
-        (
-            n13 * s5 - n23 * s4 + m33 * s3,
-            -n03 * s5 + n23 * s2 - m33 * s1,
-            n03 * s4 - n13 * s2 + m33 * s0,
-            -n03 * s3 + n13 * s1 - n23 * s0,
-        ),
-        (
-            -n12 * s5 + m22 * s4 - n23 * s3,
-            n02 * s5 - m22 * s2 + n23 * s1,
-            -n02 * s4 + n12 * s2 - n23 * s0,
-            n02 * s3 - n12 * s1 + m22 * s0,
-        ),
-    )
-    size = [np.abs(columns[j][j]) for j in range(4)]
-    take1, take3 = size[1] > size[0], size[3] > size[2]
-    size01, size23 = np.maximum(size[0], size[1]), np.maximum(size[2], size[3])
-    take23 = size23 > size01
-    q = [
-        np.where(take23, np.where(take3, columns[3][i], columns[2][i]), np.where(take1, columns[1][i], columns[0][i]))
-        for i in range(4)
-    ]
-    ill = ~empty & (np.maximum(size01, size23) < 1e-4)  # |adj_jj| ≥ (smallest gap)·q_j²·O(1)
-    q[0] = np.where(empty, 1.0, q[0])
-    for i in (1, 2, 3):
-        q[i] = np.where(empty, 0.0, q[i])
-    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    w, x, y, z = (c / norm for c in q)
-    rotations = np.empty((3, g, 3))  # rotations[d, g, c] = R_g[c, d]
-    ww, xx, yy, zz, xy, xz, yz, wx, wy, wz = w * w, x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
-    rotations[0, :, 0], rotations[1, :, 0], rotations[2, :, 0] = ww + xx - yy - zz, 2 * (xy - wz), 2 * (xz + wy)
-    rotations[0, :, 1], rotations[1, :, 1], rotations[2, :, 1] = 2 * (xy + wz), ww - xx + yy - zz, 2 * (yz - wx)
-    rotations[0, :, 2], rotations[1, :, 2], rotations[2, :, 2] = 2 * (xz - wy), 2 * (yz + wx), ww - xx - yy + zz
+    rotations = _rotations(np.ascontiguousarray(np.asarray(stacked, dtype=np.float64).reshape(3, g, 3).swapaxes(0, 1)))
+    return np.ascontiguousarray(rotations.transpose(2, 0, 1)).reshape(3 * g, 3)
+
+
+def _rotations(covariances: np.ndarray, rotations: np.ndarray | None = None) -> np.ndarray:
+    """covariances (G,3,3) ``S_g`` → (G,3,3) ``R_g`` maximising ``tr(R_g S_g)`` (:func:`fit_rotations`), into
+    ``rotations`` if given."""
+    rotations = np.empty_like(covariances) if rotations is None else rotations
+    ill = np.empty(len(covariances), dtype=bool)
+    _kernel.launch(_kernel.fit_rotations, covariances, rotations, ill)
+    _refit_ill(covariances, rotations, ill)
+    return rotations
+
+
+def _refit_ill(covariances: np.ndarray, rotations: np.ndarray, ill: np.ndarray) -> None:
+    """Replace the rotations of the groups flagged ``ill`` by :func:`fit_rotations_numpy`'s (SVD)."""
     if ill.any():
         idx = np.flatnonzero(ill)
-        rotations[:, idx] = fit_rotations_numpy(stacked.reshape(3, g, 3)[:, idx].reshape(-1, 3)).reshape(3, -1, 3)
-    return rotations.reshape(3 * g, 3)
-
-
-def _minors_4x4(m00, m11, m22, m33, n01, n02, n03, n12, n13, n23):
-    """The 2×2 minors of rows (0,1) and rows (2,3) of a symmetric 4×4 matrix (Laplace expansion of adj and det)."""
-    return (
-        m00 * m11 - n01 * n01,
-        m00 * n12 - n01 * n02,
-        m00 * n13 - n01 * n03,
-        n01 * n12 - m11 * n02,
-        n01 * n13 - m11 * n03,
-        n02 * n13 - n12 * n03,
-        n02 * n13 - n03 * n12,
-        n02 * n23 - n03 * m22,
-        n02 * m33 - n03 * n23,
-        n12 * n23 - n13 * m22,
-        n12 * m33 - n13 * n23,
-        m22 * m33 - n23 * n23,
-    )
+        stacked = covariances[idx].transpose(1, 0, 2).reshape(-1, 3)
+        rotations[idx] = fit_rotations_numpy(stacked).reshape(3, -1, 3).transpose(1, 2, 0)
 
 
 def fit_rotations_numpy(stacked: np.ndarray) -> np.ndarray:
@@ -192,11 +123,13 @@ def fit_rotations_numpy(stacked: np.ndarray) -> np.ndarray:
 class _Anderson:
     """Anderson acceleration (type II) of a fixed-point map x ↦ G(x) from its last ``depth`` evaluations.
 
-    ``θ = argmin ‖f − ΔF θ‖`` (normal equations of the small Gram matrix), next iterate ``G(x) − ΔG θ``.
+    ``θ = argmin ‖f − ΔF θ‖`` (normal equations of the small Gram matrix ``ΔFᵀΔF``, updated a column at a time),
+    next iterate ``G(x) − ΔG θ``.
     """
 
     def __init__(self, depth: int, size: int) -> None:
         self.d_g, self.d_f = np.empty((depth, size)), np.empty((depth, size))
+        self.gram = np.zeros((depth, depth))
         self.last_g, self.last_f = np.empty(size), np.empty(size)
         self.count, self.started = 0, False
         self.extrapolated = False  # whether the last call extrapolated (else it returned g)
@@ -208,14 +141,17 @@ class _Anderson:
             np.subtract(g, self.last_g, out=self.d_g[slot])
             np.subtract(f, self.last_f, out=self.d_f[slot])
             self.count += 1
+            filled = min(self.count, len(self.d_g))
+            self.gram[slot, :filled] = self.gram[:filled, slot] = np.einsum(
+                "ai,i->a", self.d_f[:filled], self.d_f[slot]
+            )
         self.last_g[:], self.last_f[:], self.started = g, f, True
         m = min(self.count, len(self.d_g))
         self.extrapolated = m > 0
         if not self.extrapolated:  # also when depth == 0
             return g
-        d_f = self.d_f[:m]
-        theta = np.linalg.lstsq(d_f @ d_f.T, d_f @ f, rcond=1e-12)[0]
-        return g - theta @ self.d_g[:m]
+        theta = np.linalg.lstsq(self.gram[:m, :m], np.einsum("ai,i->a", self.d_f[:m], f), rcond=1e-12)[0]
+        return g - np.einsum("a,ai->i", theta, self.d_g[:m])  # einsum: BLAS threads cost more than they save here
 
 
 class ArapSolver:
@@ -271,15 +207,25 @@ class ArapSolver:
         self.origin = rest.mean(0)  # work in centred coordinates: the energy is a difference of large terms
         self.rest = rest - self.origin
 
-        pairs = ELEMENT_EDGES[elements.shape[1]]
+        corners = elements.shape[1]
+        pairs = ELEMENT_EDGES[corners]
         ei, ej = elements[:, pairs[:, 0]], elements[:, pairs[:, 1]]
         self._check_components(elements, ei, ej, constraints)
         weights = cotangent_weights(rest, elements)
-        (groups, gi, gj, gw), self.n_groups, multiplicity = _energy_rows(n, elements, weights, energy)
-        edges = self.rest[gi] - self.rest[gj]
-        self._rows = (groups, gi, gj, gw, edges)
-        self._k = _covariance_scatter(gw[:, None] * edges, groups, gi, gj, n, self.n_groups)  # column a·G + g
-        self._kt = self._k.T.tocsr()
+        self._mode = _kernel.MODES[energy]
+        multiplicity = {"elements": 1, "spokes_and_rims": corners, "spokes": 2}[energy]
+        self._elements, self._pairs, self._weights = elements, pairs, weights
+        self._wedges = weights[:, :, None] * (self.rest[ei] - self.rest[ej])  # (F,E,3) u = w (p_i − p_j)
+        self._vertex_start, self._vertex_corners = _kernel.incidence(elements, n)
+        self._buffers = None
+        self._per_corner = energy == "spokes"  # covariance pieces: per corner, else per element
+        if energy == "elements":
+            self.n_groups = len(elements)
+            self._group_start, self._group_pieces = np.arange(len(elements) + 1), np.arange(len(elements))
+        else:
+            self.n_groups = n
+            pieces = self._vertex_corners if self._per_corner else self._vertex_corners // corners
+            self._group_start, self._group_pieces = self._vertex_start, pieces
         lap = sp.coo_matrix(
             (
                 np.concatenate([-weights, -weights, weights, weights], axis=None),
@@ -310,7 +256,6 @@ class ArapSolver:
                 f"ARAP: vertex {vertex} has no stiffness: all its elements are degenerate (zero area or volume)"
             )
         self._system_known = rows[:, self.known].tocsr()
-        self._k_free = self._k[self.free].tocsr()
         self._factor = SparseCholesky(rows[:, self.free]) if len(self.free) else None
 
     # ---- set-up helpers ------------------------------------------------------------------------
@@ -337,22 +282,54 @@ class ArapSolver:
 
     # ---- iteration pieces ----------------------------------------------------------------------
     def _local(self, x: np.ndarray, targets: np.ndarray | None) -> tuple[np.ndarray, float]:
-        """Best rotations (stacked ``R_gᵀ``) for centred positions ``x`` and the energy ``E(x)`` with them.
+        """Best rotations ``R_g (G,3,3)`` for centred positions ``x`` and the energy ``E(x)`` with them.
 
-        ``E = tr(XᵀmLX) − 2 Σ_g tr(R_g S_g) + tr(PᵀmLP)`` costs two sparse products but loses digits to
+        ``E = tr(XᵀmLX) − 2 Σ_g tr(R_g S_g) + tr(PᵀmLP)`` costs one sparse product but loses digits to
         cancellation when E ≪ tr(PᵀmLP) (near-rigid results); there the residuals are summed term by term.
         """
-        covariances = self._kt @ x
-        rotations = fit_rotations(covariances)
-        value = float(np.sum(x * (self._laplacian @ x))) - 2.0 * float(np.sum(rotations * covariances))
-        value += self._rest_energy
+        pieces, covariances, traces, ill, _ = self._scratch()
+        rotations = np.empty((self.n_groups, 3, 3))
+        _kernel.launch(
+            _kernel.piece_covariances, x, self._elements, self._pairs, self._wedges, self._per_corner, pieces
+        )
+        _kernel.launch(
+            _kernel.local_step, pieces, self._group_start, self._group_pieces, covariances, rotations, traces, ill
+        )
+        if ill.any():
+            _refit_ill(covariances, rotations, ill)
+            traces[ill] = np.einsum("gca,gac->g", rotations[ill], covariances[ill])
+        value = float(np.sum(x * (self._laplacian @ x))) - 2.0 * float(np.sum(traces)) + self._rest_energy
         if abs(value) < RESIDUAL_BELOW * self._rest_energy:  # few digits left after cancellation: sum the residuals
-            groups, i, j, w, edges = self._rows
-            turned = np.einsum("drc,rd->rc", rotations.reshape(3, self.n_groups, 3)[:, groups], edges)
-            value = float(np.dot(w, np.sum((x[i] - x[j] - turned) ** 2, axis=1)))
+            terms = np.empty(len(self._elements))  # rare: not kept
+            _kernel.launch(
+                _kernel.residual_energy, x, self.rest, self._elements, self._pairs, self._weights, rotations,
+                self._mode, terms,
+            )  # fmt: skip
+            value = float(np.sum(terms))
         if targets is not None:
             value += self.constraint_weight * float(np.sum((self.constraints @ x - targets) ** 2))
         return rotations, value
+
+    def _scratch(self) -> tuple[np.ndarray, ...]:
+        """Work arrays of the kernels, allocated once: covariance pieces, covariances (G,3,3), traces (G,), ill (G,),
+        turned edges (F,E,3)."""
+        if self._buffers is None:
+            g, count = self.n_groups, self._elements.size if self._per_corner else len(self._elements)
+            self._buffers = (
+                np.empty((count, 3, 3)), np.empty((g, 3, 3)), np.empty(g), np.empty(g, dtype=bool),
+                np.empty_like(self._wedges),
+            )  # fmt: skip
+        return self._buffers
+
+    def _rotated_edges(self, rotations: np.ndarray) -> np.ndarray:
+        """``(K R)`` (free rows, 3): the global step's right-hand side ``Σ ±R_g w (p_i − p_j)`` at each free vertex."""
+        turned, out = self._scratch()[4], np.empty((len(self.free), 3))
+        _kernel.launch(_kernel.rotate_edges, self._elements, self._pairs, self._wedges, rotations, self._mode, turned)
+        _kernel.launch(
+            _kernel.gather_edges, self._elements, self._pairs, turned, self.free, self._vertex_start,
+            self._vertex_corners, out,
+        )  # fmt: skip
+        return out
 
     def _centred_targets(self, targets: np.ndarray | None) -> np.ndarray | None:
         if self.constraints is None:
@@ -408,10 +385,10 @@ class ArapSolver:
 
         rotations, energy = self._local(x, targets)
         energies, converged = [energy], self._factor is None
-        accelerator = _Anderson(anderson, 3 * len(self.free))
         floor = 1e-20 * max(self._rest_energy, np.finfo(float).tiny)
+        accelerator = _Anderson(anderson, 3 * len(self.free))
         while not converged and len(energies) <= max_iterations:
-            plain = self._factor.solve(self._k_free @ rotations + rhs)
+            plain = self._factor.solve(self._rotated_edges(rotations) + rhs)
             trial = x.copy()
             trial[self.free] = accelerator(plain.ravel(), (plain - x[self.free]).ravel()).reshape(-1, 3)
             trial_rotations, trial_energy = self._local(trial, targets)
@@ -423,39 +400,15 @@ class ArapSolver:
                 break
             x, rotations, energy = trial, trial_rotations, trial_energy
             energies.append(energy)
-            window = min(CONVERGENCE_WINDOW, len(energies) - 1)
-            before = energies[-1 - window]
-            converged = before - energy <= window * tolerance * abs(before) or abs(energy) <= floor
+            converged = _converged(energies, tolerance, floor)
         vertices = x + self.origin
         vertices[self.fixed] = fixed_positions  # exactly, without the round trip through centred coordinates
         return ArapResult(vertices, len(energies) - 1, energies, bool(converged))
 
 
-def _energy_rows(n_vertices, elements, weights, energy):
-    """The terms ``w ‖(x_i − x_j) − R_g (p_i − p_j)‖²`` of the energy as flat arrays ``(g, i, j, w)`` (zero weights
-    dropped), the number of groups G, and how many groups hold each element edge (the factor m of ``m·L``)."""
-    n_elements, corners = elements.shape
-    pairs = ELEMENT_EDGES[corners]
-    i, j = elements[:, pairs[:, 0]], elements[:, pairs[:, 1]]  # (F, E)
-    if energy == "elements":
-        groups, n_groups, multiplicity = np.broadcast_to(np.arange(n_elements)[:, None], i.shape), n_elements, 1
-    elif energy == "spokes_and_rims":  # the group of every corner holds all edges of the element
-        shape = (n_elements, corners, i.shape[1])
-        groups, n_groups, multiplicity = np.broadcast_to(elements[:, :, None], shape), n_vertices, corners
-        i, j, weights = (np.broadcast_to(a[:, None, :], shape) for a in (i, j, weights))
-    else:  # spokes: edge ij is in the groups of i and of j
-        groups, n_groups, multiplicity = np.stack([i, j], axis=-1), n_vertices, 2
-        i, j, weights = (np.broadcast_to(a[..., None], groups.shape) for a in (i, j, weights))
-    keep = np.ravel(weights) != 0
-    rows = tuple(np.ravel(a)[keep] for a in (groups, i, j, weights))
-    return rows, n_groups, multiplicity
-
-
-def _covariance_scatter(edges, groups, i, j, n_vertices, n_groups) -> sp.csr_matrix:
-    """``K (N, 3G)`` with ``K[v, a·G + g] = Σ_{terms of g} w (p_i − p_j)_a ([v = i] − [v = j])`` from the weighted
-    rest edges ``edges = w (p_i − p_j)``: ``Kᵀ X`` stacks every covariance ``S_g``, ``K R`` is the global step's
-    right-hand side."""
-    cols = (np.arange(3)[:, None] * n_groups + groups).ravel()
-    values = np.concatenate([edges.T.ravel(), -edges.T.ravel()])
-    rows = np.concatenate([np.tile(i, 3), np.tile(j, 3)])
-    return sp.csr_matrix((values, (rows, np.concatenate([cols, cols]))), shape=(n_vertices, 3 * n_groups))
+def _converged(energies: list[float], tolerance: float, floor: float) -> bool:
+    """The relative energy decrease per iteration over the last :data:`CONVERGENCE_WINDOW` iterations is ≤
+    ``tolerance``, or E is below ``floor``."""
+    window = min(CONVERGENCE_WINDOW, len(energies) - 1)
+    before = energies[-1 - window]
+    return before - energies[-1] <= window * tolerance * abs(before) or abs(energies[-1]) <= floor

@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 from deformers.arap import ArapConfig, ArapDeformer
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry import _arap_kernel as kernel
 from nerfedit_plugin.geometry.arap import (
     ELEMENT_EDGES,
     ArapSolver,
@@ -129,6 +130,80 @@ def test_fit_rotations_is_the_optimal_rotation():
         # and it is the maximiser igl finds too
         igl_rot = igl.fit_rotations(stacked, False).reshape(3, -1, 3).transpose(1, 0, 2)
         assert np.allclose(np.einsum("gab,gba->g", igl_rot, cov), reached, atol=1e-10), name
+
+
+def energy_terms(n_vertices, elements, weights, energy):
+    """Brute force: the terms ``w ‖(x_i − x_j) − R_g (p_i − p_j)‖²`` as flat ``(g, i, j, w)`` and the group count."""
+    n_elements, corners = elements.shape
+    pairs = ELEMENT_EDGES[corners]
+    rows = []
+    for f in range(n_elements):
+        for e, (a, b) in enumerate(pairs):
+            i, j, w = elements[f, a], elements[f, b], weights[f, e]
+            if energy == "elements":
+                groups = [f]
+            elif energy == "spokes_and_rims":
+                groups = list(elements[f])
+            else:
+                groups = [i, j]
+            rows += [(g, i, j, w) for g in groups]
+    g, i, j, w = (np.array(c) for c in zip(*rows, strict=True))
+    return (g, i, j, w), n_elements if energy == "elements" else n_vertices
+
+
+def covariance_matrix(rest, elements, energy) -> tuple[sp.csr_matrix, tuple]:
+    """The sparse ``K (N, 3G)``, ``K[v, a·G + g] = Σ_{terms of g} w (p_i − p_j)_a ([v = i] − [v = j])``: ``Kᵀ X``
+    stacks the covariances ``S_g`` (row ``a·G + g`` = row a), ``K R`` (the ``R_gᵀ`` stacked) is the global step's
+    right-hand side."""
+    (g, i, j, w), n_groups = energy_terms(len(rest), elements, cotangent_weights(rest, elements), energy)
+    edges = w[:, None] * (rest[i] - rest[j])
+    cols = (np.arange(3)[:, None] * n_groups + g).ravel()
+    values = np.concatenate([edges.T.ravel(), -edges.T.ravel()])
+    k_rows = np.concatenate([np.tile(i, 3), np.tile(j, 3)])
+    shape = (len(rest), 3 * n_groups)
+    return sp.csr_matrix((values, (k_rows, np.concatenate([cols, cols]))), shape=shape), (g, i, j, w)
+
+
+@pytest.mark.parametrize("energy", ["spokes_and_rims", "spokes", "elements", "tet elements", "tet spokes"])
+def test_kernels_are_the_sparse_covariance_formulas(energy):
+    """Covariances ``Kᵀ X``, the energy (with the rotations of the SVD oracle), the residual sum, ``K R`` and plain
+    local/global iterates built from the brute-force sparse ``K``, against the compiled kernels."""
+    vertices, elements = tet_grid(6) if energy.startswith("tet") else decimated_bunny(2000)
+    energy = energy.split()[-1]
+    handles, targets = bend_handles(vertices, degrees=50.0)
+    solver = ArapSolver(vertices, elements, energy=energy, fixed=handles)
+    k, (g, i, j, w) = covariance_matrix(solver.rest, elements, energy)
+    laplacian = {"elements": 1, "spokes": 2}.get(energy, elements.shape[1]) * assembled_laplacian(vertices, elements)
+    x = solver.rest + 0.05 * bbox(vertices) * np.random.default_rng(3).normal(size=vertices.shape)
+
+    rotations, value = solver._local(x, None)
+    covariances = k.T @ x
+    ours = solver._scratch()[1]  # (G,3,3) S_g[a, c]
+    assert np.abs(ours.transpose(1, 0, 2).reshape(-1, 3) - covariances).max() <= 1e-12 * np.abs(covariances).max()
+    reference = fit_rotations_numpy(covariances)  # R_gᵀ stacked
+    stacked = rotations.transpose(2, 0, 1).reshape(-1, 3)
+    assert np.abs(stacked - reference).max() <= 1e-8
+    rest_energy = np.sum(solver.rest * (laplacian @ solver.rest))
+    expected = np.sum(x * (laplacian @ x)) - 2 * np.sum(reference * covariances) + rest_energy
+    assert value == pytest.approx(expected, rel=1e-12)
+    turned = np.einsum("tca,ta->tc", rotations[g], solver.rest[i] - solver.rest[j])
+    residuals = np.dot(w, np.sum((x[i] - x[j] - turned) ** 2, axis=1))
+    assert residuals == pytest.approx(expected, rel=1e-10)
+    terms = np.empty(len(elements))
+    kernel.residual_energy(x, solver.rest, elements, solver._pairs, solver._weights, rotations, solver._mode, terms)
+    assert terms.sum() == pytest.approx(residuals, rel=1e-12)
+    rhs = (k @ stacked)[solver.free]
+    assert np.abs(solver._rotated_edges(rotations) - rhs).max() <= 1e-12 * np.abs(rhs).max()
+
+    # plain local/global iterations of the sparse formulas (SVD rotations) are the solver's
+    free, known = solver.free, solver.known
+    y = solver.rest.copy()
+    y[handles] = targets - solver.origin
+    system = laplacian[free][:, free].toarray()
+    for _ in range(5):
+        y[free] = np.linalg.solve(system, k[free] @ fit_rotations_numpy(k.T @ y) - laplacian[free][:, known] @ y[known])
+    result = solver.solve(targets, max_iterations=5, tolerance=0.0, anderson=0)
+    assert np.abs(result.vertices - (y + solver.origin)).max() <= 1e-10 * bbox(vertices)
 
 
 # ---- surface ARAP ------------------------------------------------------------------------------------
