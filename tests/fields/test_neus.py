@@ -147,6 +147,30 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
     assert (values[near] - truth[near]).abs().mean() < 0.02 * radius * 2
 
 
+def test_opaque_images_start_from_the_box_surface(monkeypatch):
+    """Opaque images (no silhouettes) have the whole box as visual hull: ``fit`` starts from the signed distance to
+    the box shrunk by two cells — exact at the vertices (−(smallest half side − 2h) at the centre, positive at the
+    corners) — instead of the sphere."""
+    field = NeusConfig(resolution=16, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    field.init_from_box()
+    vertices = field.grid.vertex_points().reshape(-1, 3)
+    q = vertices.abs() - ((BOX[1] - BOX[0]) / 2 - 2 * field.cell)
+    truth = q.clamp_min(0).norm(dim=1) + q.amax(1).clamp_max(0)
+    torch.testing.assert_close(sdf(field, vertices), truth, atol=1e-6, rtol=0)
+    centre = sdf(field, torch.zeros(1, 3)).detach()
+    assert float(centre) == pytest.approx(-(0.3 - 2 * field.cell), abs=1e-6) and (sdf(field, BOX) > 0).all()
+
+    class Opaque:  # what fit reads before training: no alpha, so no silhouettes
+        opaque, alpha = True, None
+
+    started = []
+    monkeypatch.setattr("nerfedit_plugin.fields.neus.train", lambda field, *a, **k: started.append(field) or {})
+    fresh = NeusConfig(resolution=16, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    fresh.fit(Opaque())
+    assert started == [fresh] and fresh.config.background == "field"
+    torch.testing.assert_close(sdf(fresh, vertices), truth, atol=1e-6, rtol=0)
+
+
 def test_training_improves_test_psnr_and_checkpoint_round_trips(tiny_scene, tmp_path):
     train, test = load_dataset(tiny_scene, "train"), load_dataset(tiny_scene, "test")
     config = NeusConfig.tiny(seconds=600.0)  # the step budget binds: same result on a busy machine
