@@ -11,9 +11,10 @@ does).
 ``--solver`` instead times the ARAP solver alone in CPU time (``time.process_time``, all threads): the bind
 (``ArapSolver``), the solve with the deformer's defaults (iterations, E ÷ the reference energy :data:`REFERENCE`
 − 1), and a run without stopping test: the iterations to reach E ≤ (1 + 10⁻³) E_ref and their CPU time (the
-run's CPU per iteration × iterations).
+run's CPU per iteration × iterations), for each ``--method`` of ``ArapSolver.solve`` (level by level, the methods
+interleaved, so both see the same machine load).
 
-Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver]``
+Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver [--method lbfgs anderson]]``
 """
 
 from __future__ import annotations
@@ -84,8 +85,8 @@ def measure(level: int, cache: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def solver_case(level: int) -> None:
-    """The ARAP solver alone on one level: prints its table row (CPU seconds)."""
+def solver_case(level: int, methods: list[str]) -> None:
+    """The ARAP solver alone on one level: prints a table row (CPU seconds) per method."""
     from deformers.arap import ArapConfig
     from nerfedit_plugin.edit.spec import load_edit_spec
     from nerfedit_plugin.geometry.arap import ArapSolver
@@ -97,26 +98,32 @@ def solver_case(level: int) -> None:
     solver = ArapSolver(mesh.vertices, mesh.faces, fixed=handles)
     bind = time.process_time() - start
     config, reference = ArapConfig(), REFERENCE[level]
-    start = time.process_time()
-    result = solver.solve(targets[0], max_iterations=config.max_iterations, tolerance=config.tolerance)
-    deform = time.process_time() - start
-    assert np.array_equal(result.vertices[handles], targets[0])
-    start = time.process_time()
-    long = solver.solve(targets[0], max_iterations=REACH_ITERATIONS, tolerance=0.0)
-    per_iteration = (time.process_time() - start) / max(long.iterations, 1)
-    reached = np.flatnonzero(np.array(long.energies) <= (1 + 1e-3) * reference)
-    reach = f"{reached[0]} | {reached[0] * per_iteration:.1f}" if len(reached) else f"> {long.iterations} | –"
-    print(
-        f"| {len(mesh.vertices)} | {bind:.2f} | {deform:.2f} | {result.iterations} | "
-        f"{result.energies[-1] / reference - 1:.1e} | {reach} | {1e3 * per_iteration:.0f} |",
-        flush=True,
-    )
+    for method in methods:
+        start = time.process_time()
+        result = solver.solve(
+            targets[0], max_iterations=config.max_iterations, tolerance=config.tolerance, method=method
+        )
+        deform = time.process_time() - start
+        assert np.array_equal(result.vertices[handles], targets[0])
+        start = time.process_time()
+        long = solver.solve(targets[0], max_iterations=REACH_ITERATIONS, tolerance=0.0, method=method)
+        per_iteration = (time.process_time() - start) / max(long.iterations, 1)
+        reached = np.flatnonzero(np.array(long.energies) <= (1 + 1e-3) * reference)
+        reach = f"{reached[0]} | {reached[0] * per_iteration:.1f}" if len(reached) else f"> {long.iterations} | –"
+        print(
+            f"| {len(mesh.vertices)} | {method} | {bind:.2f} | {deform:.2f} | {result.iterations} | "
+            f"{result.energies[-1] / reference - 1:.1e} | {reach} | {1e3 * per_iteration:.0f} |",
+            flush=True,
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels", type=int, nargs="+", default=[0, 1, 2, 3], help="Loop subdivision levels")
     parser.add_argument("--solver", action="store_true", help="time the ARAP solver alone (CPU time)")
+    parser.add_argument(
+        "--method", nargs="+", default=["lbfgs", "anderson"], choices=["lbfgs", "anderson"], help="with --solver"
+    )
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--cache", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -125,12 +132,12 @@ def main() -> None:
         return
     if args.solver:
         print(
-            "| vertices | bind CPU s | deform CPU s | iterations | E/E_ref − 1 | iterations to 1e-3 | CPU s to 1e-3 | "
-            "ms/iteration |"
+            "| vertices | method | bind CPU s | deform CPU s | iterations | E/E_ref − 1 | iterations to 1e-3 | "
+            "CPU s to 1e-3 | ms/iteration |"
         )
-        print("|" + "---|" * 8)
+        print("|" + "---|" * 9)
         for level in args.levels:
-            solver_case(level)
+            solver_case(level, args.method)
         return
     rows = []
     for level in sorted(set(args.levels) | {ANCHOR}):

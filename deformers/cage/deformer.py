@@ -2,9 +2,12 @@
 
 Spec (besides ``frames``): ``"cage": "cage.ply"`` + ``"deformed_cage": "cage_deformed.ply"`` (both cages given, same
 vertex order; frames interpolate linearly), or ``"cage": "auto"`` (default) / a cage file + ``"handles"`` applied to
-the *cage* vertices. ``bind`` computes the coordinates ``(V, C)`` float64 of every mesh vertex once; each pose is one
-matrix product. Mesh points outside the cage trigger a warning (mean value coordinates extrapolate; Green coordinates
-are undefined there and fall back to mean value coordinates). Formulas: docs/method.md, "Built-in deformers".
+the *cage* vertices. ``bind`` evaluates the coordinates of the mesh vertices in blocks of ``bind_block`` (memory bounded
+by the block, not the mesh) and poses every frame of the spec from each block in float64; it keeps the coordinates
+(float64, else float32 when only those fit ``weights_budget_mb``) so that a changed ``deformed_cages`` (the editor's
+previews) re-poses with one matrix product per block, and otherwise evaluates them again block by block. Mesh points
+outside the cage trigger a warning (mean value coordinates extrapolate; Green coordinates are undefined there and fall
+back to mean value coordinates). Formulas: docs/method.md, "Built-in deformers".
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, cluster_vertices
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 
 NEAR_CAGE = 1e-4  # closer to the cage than this × its size: the exact winding number decides inside / outside
@@ -46,18 +49,44 @@ class CageConfig(DeformerConfig):
     """``"cage": "auto"``: simplify the wrap (quadric edge collapse) to at most this many vertices."""
     chunk_size: int = 64
     """Points per block when evaluating coordinates (memory ≈ 40 · cage faces · chunk_size floats per thread)."""
+    bind_block: int = 16384
+    """Mesh vertices whose coordinates are evaluated (and posed) at once by ``bind``: its working memory is about
+    ``8 · (C + F) · bind_block`` bytes whatever the mesh size (C cage vertices, F cage faces)."""
+    weights_budget_mb: float = 3072.0
+    """Keep the coordinates of the mesh vertices after ``bind`` (for re-posing a changed ``deformed_cages``: the
+    editor's previews) when they fit in this many MiB: as float64, else as float32 (a re-pose then differs from
+    float64 by ~1e-8 of the cage size), else not at all (a re-pose evaluates them again, block by block: as slow as
+    the bind). They take ``8 · C · V`` bytes as float64 for ``mvc``, ``8 · (C + F) · V`` for ``green`` (C cage
+    vertices, F ≈ 2C faces): with the auto cage's 400 vertices, mvc keeps float64 up to ~1M mesh vertices and float32
+    up to 2M; green float64 up to 330k, float32 up to 670k."""
 
     def __post_init__(self) -> None:
         check_option(self, "auto_alpha", self.auto_alpha, self.auto_alpha > 0, "> 0")
         check_option(self, "auto_offset", self.auto_offset, self.auto_offset > 0, "> 0")
         check_option(self, "auto_max_vertices", self.auto_max_vertices, self.auto_max_vertices >= 4, ">= 4")
         check_option(self, "chunk_size", self.chunk_size, self.chunk_size >= 1, ">= 1")
+        check_option(self, "bind_block", self.bind_block, self.bind_block >= 1, ">= 1")
+        budget = self.weights_budget_mb
+        check_option(self, "weights_budget_mb", budget, bool(np.isfinite(budget) and budget >= 0), "a number >= 0")
+
+
+AUTO_CLUSTER_FACES = 200_000
+"""Meshes of this many triangles or more are alpha-wrapped through their vertex clustering (as the tet proxy's
+``wrap_cluster_faces``): the wrap's time grows with its input's triangles (14 s for the 3.6M of a 1.8M-vertex mesh)."""
+AUTO_CLUSTER_CELL = 0.25
+"""Cell of that clustering, × the wrap's offset (the clustered surface lies within a cell diagonal of the mesh)."""
 
 
 def auto_cage(mesh: SurfaceMesh, alpha: float = 5.0, offset: float = 2.0, max_vertices: int = 400) -> SurfaceMesh:
-    """A coarse watertight cage around ``mesh``: pymeshlab alpha wrap (percentages of the bbox diagonal), then
-    quadric edge collapse down to ``max_vertices`` if needed."""
-    return wrap_and_decimate(mesh.vertices, mesh.faces, alpha, offset, percent=True, max_vertices=max_vertices)
+    """A coarse watertight cage around ``mesh``: pymeshlab alpha wrap (percentages of the bbox diagonal; of the
+    :func:`~nerfedit_plugin.geometry.mesh.cluster_vertices` of the mesh on cells of :data:`AUTO_CLUSTER_CELL` ×
+    offset from :data:`AUTO_CLUSTER_FACES` triangles on), then quadric edge collapse down to ``max_vertices`` if
+    needed."""
+    if len(mesh.faces) < AUTO_CLUSTER_FACES:
+        return wrap_and_decimate(mesh.vertices, mesh.faces, alpha, offset, percent=True, max_vertices=max_vertices)
+    size = mesh.bbox_diagonal / 100.0  # percentages of the mesh's diagonal, not of its clustering's
+    wrapped = cluster_vertices(mesh, AUTO_CLUSTER_CELL * offset * size)
+    return wrap_and_decimate(wrapped.vertices, wrapped.faces, alpha * size, offset * size, max_vertices=max_vertices)
 
 
 def validate_cage(cage: SurfaceMesh, label: str) -> SurfaceMesh:
@@ -127,7 +156,10 @@ class CageDeformer(Deformer):
         super().__init__(config)
         self.rest_cage: SurfaceMesh | None = None
         self.deformed_cages: np.ndarray | None = None
-        self._weights: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._points: np.ndarray | None = None  # the bound mesh vertices (V,3) and which lie inside the cage (V,) bool
+        self._inside: np.ndarray | None = None
+        self._weights: tuple[np.ndarray, np.ndarray | None] | None = None  # (phiᵀ (C,V), psiᵀ (F,V) or None) or None
+        self._posed: tuple[np.ndarray, np.ndarray] | None = None  # (deformed_cages, frames (frames,V,3)) of the bind
         self._last: tuple[np.ndarray, tuple[np.ndarray, np.ndarray | None]] | None = None
 
     # ---- binding -----------------------------------------------------------------------------------------------
@@ -146,12 +178,12 @@ class CageDeformer(Deformer):
                     f'{edit.source}: deformed_cage: needs a cage file with the same vertex order, but cage is "auto"'
                 )
             label = f"{edit.source}: cage: auto"
-            cage, mean_value = self._auto_cage(rest, label)
+            cage, (inside, outside) = self._auto_cage(rest, label)
         else:
             label = f"{edit.source}: cage: {edit.path('cage')}"
             loaded = _load_cage(edit, "cage")
             cage = validate_cage(loaded, label)
-            mean_value = self._mean_value(rest.vertices, cage)
+            inside, outside = enclosure(rest.vertices, cage)
 
         if has_target:
             target = _load_cage(edit, "deformed_cage")
@@ -171,7 +203,10 @@ class CageDeformer(Deformer):
             poses[:, idx] = targets
 
         self.rest_cage, self.deformed_cages, self._last = cage, poses, None
-        self._weights, outside = self._coordinates(rest.vertices, mean_value)
+        self._points, self._inside = rest.vertices, inside
+        self._weights, frames = self._evaluate(poses, keep=True)
+        self._posed = (poses.copy(), frames)
+        outside = int(np.count_nonzero(outside))
         if outside:
             fallback = (
                 "mean value coordinates extrapolate them"
@@ -186,42 +221,95 @@ class CageDeformer(Deformer):
         """Mean value coordinates ``(P, C)`` of ``points`` in ``cage``."""
         return mean_value_coordinates(points, cage.vertices, cage.faces, chunk_size=self.config.chunk_size)
 
-    def _auto_cage(self, rest: SurfaceMesh, label: str) -> tuple[SurfaceMesh, np.ndarray]:
-        """The automatic cage and the mesh's mean value coordinates in it. Simplification can cut into the mesh:
+    def _auto_cage(self, rest: SurfaceMesh, label: str) -> tuple[SurfaceMesh, tuple[np.ndarray, np.ndarray]]:
+        """The automatic cage and the :func:`enclosure` of the mesh in it. Simplification can cut into the mesh:
         then wrap again farther out (offset ×2, ×4) until every vertex is inside."""
         cfg = self.config
         for attempt in range(3):
             wrap = auto_cage(rest, cfg.auto_alpha, cfg.auto_offset * 2**attempt, cfg.auto_max_vertices)
             cage = validate_cage(wrap, label)
-            if not np.any(enclosure(rest.vertices, cage)[1]):
+            masks = enclosure(rest.vertices, cage)
+            if not np.any(masks[1]):
                 break
-        return cage, self._mean_value(rest.vertices, cage)
+        return cage, masks
 
-    def _coordinates(self, points: np.ndarray, phi: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray | None], int]:
-        """``((phiᵀ (C, P), psiᵀ (F, P) or None), number of points outside the cage)`` from the points' mean value
-        coordinates ``phi`` in the rest cage; transposed so a pose is one C-contiguous product."""
+    def _coordinates(self, points: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(phiᵀ (C, P), psiᵀ (F, P) or None)`` float64 of ``points (P,3)`` in the rest cage, ``inside (P,)`` bool
+        their :func:`enclosure`: mean value coordinates, or Green coordinates (mean value ones outside the cage);
+        transposed so a pose is one C-contiguous product."""
         cage, chunk = self.rest_cage, self.config.chunk_size
-        inside, outside = enclosure(points, cage)
-        n_outside = int(np.count_nonzero(outside))
         if self.config.coordinates == "mvc":
-            return (phi.T, None), n_outside
-        phi_t, psi_t = phi.T, np.zeros((len(cage.faces), len(points)))  # inside columns become Green coordinates
-        green_phi, green_psi = green_coordinates(points[inside], cage.vertices, cage.faces, chunk_size=chunk)
-        phi_t[:, inside], psi_t[:, inside] = green_phi.T, green_psi.T
-        return (phi_t, psi_t), n_outside
+            return self._mean_value(points, cage).T, None
+        phi_t, psi_t = np.empty((len(cage.vertices), len(points))), np.zeros((len(cage.faces), len(points)))
+        if not inside.all():  # mean value coordinates where Green coordinates are undefined
+            phi_t[:, ~inside] = self._mean_value(points[~inside], cage).T
+        if inside.any():
+            green_phi, green_psi = green_coordinates(points[inside], cage.vertices, cage.faces, chunk_size=chunk)
+            phi_t[:, inside], psi_t[:, inside] = green_phi.T, green_psi.T
+        return phi_t, psi_t
+
+    def _stored_dtype(self) -> type | None:
+        """float64, float32 or None: how the coordinates of the bound points fit ``weights_budget_mb``."""
+        cage, n = self.rest_cage, len(self._points)
+        rows = len(cage.vertices) + (len(cage.faces) if self.config.coordinates == "green" else 0)
+        budget = self.config.weights_budget_mb * 2**20
+        return next(
+            (dtype for dtype in (np.float64, np.float32) if rows * n * np.dtype(dtype).itemsize <= budget), None
+        )
+
+    def _evaluate(
+        self, poses: np.ndarray, keep: bool
+    ) -> tuple[tuple[np.ndarray, np.ndarray | None] | None, np.ndarray]:
+        """Coordinates of the bound points evaluated block by block (``bind_block`` points) and applied to
+        ``poses (frames, C, 3)`` → ``(the coordinates as :meth:`_stored_dtype` keeps them, or None; frames
+        (frames, V, 3) float64)``. Only ``keep`` stores coordinates."""
+        cage, points, inside = self.rest_cage, self._points, self._inside
+        n, block = len(points), self.config.bind_block
+        dtype = self._stored_dtype() if keep else None
+        green = self.config.coordinates == "green"
+        stored = None
+        if dtype is not None:
+            stored = (
+                np.empty((len(cage.vertices), n), dtype=dtype),
+                np.empty((len(cage.faces), n), dtype=dtype) if green else None,
+            )
+        terms = [green_face_terms(cage.vertices, pose, cage.faces) for pose in poses] if green else None
+        frames = np.empty((len(poses), n, 3))
+        for start in range(0, n, block):
+            part = slice(start, min(start + block, n))
+            phi_t, psi_t = self._coordinates(points[part], inside[part])
+            for f, pose in enumerate(poses):
+                frames[f, part] = _posed(phi_t, psi_t, pose, None if terms is None else terms[f])
+            if stored is not None:
+                stored[0][:, part] = phi_t
+                if green:
+                    stored[1][:, part] = psi_t
+        return stored, frames
 
     # ---- evaluation --------------------------------------------------------------------------------------------
     def _apply(self, weights: tuple[np.ndarray, np.ndarray | None], frame: int) -> np.ndarray:
+        """The ``frame`` pose of points with coordinates ``weights`` (float64 or float32, ``(C, P)`` / ``(F, P)``)
+        → (P,3) float64, block by block (``bind_block`` points: float32 coordinates are widened one block at a
+        time)."""
         phi_t, psi_t = weights
         pose = self.deformed_cages[frame]
-        out = pose.T @ phi_t
-        if psi_t is not None:
-            out += green_face_terms(self.rest_cage.vertices, pose, self.rest_cage.faces).T @ psi_t
-        return np.ascontiguousarray(out.T)
+        terms = None if psi_t is None else green_face_terms(self.rest_cage.vertices, pose, self.rest_cage.faces)
+        n, block = phi_t.shape[1], self.config.bind_block
+        if phi_t.dtype == np.float64 and n <= block:
+            return _posed(phi_t, psi_t, pose, terms)
+        out = np.empty((n, 3))
+        for start in range(0, n, block):
+            part = slice(start, min(start + block, n))
+            out[part] = _posed(phi_t[:, part], None if psi_t is None else psi_t[:, part], pose, terms)
+        return out
 
     def deform(self) -> np.ndarray:
-        if self._weights is None:
+        if self._posed is None:
             raise RuntimeError("CageDeformer.deform() called before bind()")
+        if np.array_equal(self._posed[0], self.deformed_cages):  # the poses of the bind: posed then, in float64
+            return self._posed[1].copy()
+        if self._weights is None:  # the coordinates did not fit weights_budget_mb: evaluate them again
+            return self._evaluate(np.asarray(self.deformed_cages, dtype=np.float64), keep=False)[1]
         return np.stack([self._apply(self._weights, f) for f in range(len(self.deformed_cages))])
 
     def deform_points(self, points: np.ndarray, frame: int) -> np.ndarray:
@@ -230,7 +318,7 @@ class CageDeformer(Deformer):
             raise RuntimeError("CageDeformer.deform_points() called before bind()")
         points = np.asarray(points, dtype=np.float64)
         if self._last is None or not np.array_equal(self._last[0], points):
-            self._last = (points.copy(), self._coordinates(points, self._mean_value(points, self.rest_cage))[0])
+            self._last = (points.copy(), self._coordinates(points, enclosure(points, self.rest_cage)[0]))
         return self._apply(self._last[1], frame)
 
     def write_artifacts(self, out_dir: Path) -> list[Path]:
@@ -288,3 +376,19 @@ class CageDeformer(Deformer):
             "translate": [0.1 * rest.bbox_diagonal, 0.0, 0.0],
         }
         return {**out, "handles": [{"select": everything, "transform": motion}]}
+
+
+def _posed(phi_t: np.ndarray, psi_t: np.ndarray | None, pose: np.ndarray, terms: np.ndarray | None) -> np.ndarray:
+    """Points with coordinates ``phi_t (C,P)``, ``psi_t (F,P)`` or None (float64 or float32) under the cage pose
+    ``pose (C,3)`` (``terms (F,3)``: its :func:`green_face_terms`) → (P,3) float64. float32 coordinates are widened
+    (their sum is 1 to ~1e-7 only: the pose is taken about its bounding-box centre, so the error scales with the
+    cage's size, not with its distance from the origin)."""
+    if phi_t.dtype != np.float64:
+        centre = (pose.min(0) + pose.max(0)) / 2
+        out = (pose - centre).T @ phi_t.astype(np.float64)
+        out += centre[:, None]
+    else:
+        out = pose.T @ phi_t
+    if psi_t is not None:
+        out += terms.T @ psi_t.astype(np.float64, copy=False)
+    return np.ascontiguousarray(out.T)

@@ -138,7 +138,9 @@ class Lift:
         self.rest, self.method, self.config = rest, method, config
         self.deformer, self.edit = deformer, edit
         self.rest_normals = face_normals(rest.vertices, rest.faces)
-        self.surface = np.unique(rest.faces)
+        used = np.zeros(rest.n_vertices, dtype=bool)
+        used[rest.faces.ravel()] = True  # np.unique(rest.faces), without sorting the 3F corners
+        self.surface = np.flatnonzero(used)
         """The surface vertices (those of a face): the constraints and residuals of the lift (a stray vertex,
         which no deformer is bound to move with its neighbours, would pull the proxy apart)."""
         if method == "direct" and (deformer is None or not deformer.supports_points()):

@@ -4,7 +4,8 @@
 one rotation ``R_g`` per rotation group ``g`` (``energy``: ``spokes_and_rims``, ``spokes`` or ``elements``),
 ``E(X) = min_R Σ_g Σ_{(i,j)∈g} w_ij ‖(x_i − x_j) − R_g (p_i − p_j)‖²  (+ w_c ‖C X − T‖², soft constraints C (m,N))``.
 Fixed vertices are eliminated exactly; local/global iterations share one prefactored sparse Cholesky and are
-Anderson-accelerated under an energy guard (the energy never increases). Covariances, rotations, energy and the
+accelerated under an energy guard (the energy never increases): Anderson acceleration, or L-BFGS on E with the
+prefactored system as initial inverse Hessian (``method``). Covariances, rotations, energy and the
 global step's right-hand side come from the elements in compiled kernels (:mod:`._arap_kernel`: no ``(N, 3G)``
 matrix; spokes-and-rims pools per-triangle covariances ``S_v = Σ_{f∋v} S_f``). The derivation and the solver's
 choices: docs/method.md, "Surface editing: ARAP".
@@ -36,6 +37,10 @@ ANDERSON_DEPTH = 5
 RESIDUAL_BELOW = 1e-8
 #: iterations over which the relative energy decrease is averaged for the stopping test
 CONVERGENCE_WINDOW = 3
+#: minimisation methods of :meth:`ArapSolver.solve`
+METHODS = ("anderson", "lbfgs")
+#: L-BFGS history length, backtracking halvings before the plain step, Armijo sufficient-decrease constant
+LBFGS_DEPTH, LINE_SEARCH_STEPS, ARMIJO = 8, 4, 1e-4
 
 
 class ArapResult(NamedTuple):
@@ -154,6 +159,50 @@ class _Anderson:
         return g - np.einsum("a,ai->i", theta, self.d_g[:m])  # einsum: BLAS threads cost more than they save here
 
 
+class _Lbfgs:
+    """L-BFGS two-loop recursion on a quadratic-plus-rotations energy whose system matrix ``A`` is prefactored
+    (Liu, Bouaziz & Kavan 2017), with initial inverse Hessian ``γ A⁻¹``, ``γ = sᵀy / yᵀA⁻¹y`` of the newest pair.
+
+    Besides the steps ``s`` and gradient changes ``y`` it keeps ``z = A⁻¹y`` (the change of ``A⁻¹h``, which the
+    caller computes anyway for the plain local/global step), so ``A⁻¹q = A⁻¹h − Σ α z`` and ``γ`` cost no
+    back-substitution. Vectors are ``(n, 3)``.
+    """
+
+    def __init__(self, depth: int, shape: tuple[int, int]) -> None:
+        self.s, self.y, self.z = (np.empty((depth, *shape)) for _ in range(3))
+        self.rho = np.empty(depth)
+        self.count = 0  # pairs pushed since the last reset (the newest min(count, depth) are kept)
+
+    def reset(self) -> None:
+        self.count = 0
+
+    def push(self, s: np.ndarray, y: np.ndarray, z: np.ndarray) -> None:
+        """Add the pair ``s = x⁺ − x``, ``y = h⁺ − h`` (and ``z = A⁻¹y``) unless its curvature ``sᵀy`` is not
+        clearly positive (E is not convex: such a pair would make the inverse Hessian indefinite)."""
+        curvature = _dot(s, y)
+        if not curvature > 1e-12 * np.sqrt(_dot(s, s) * _dot(y, y)):
+            return
+        slot = self.count % len(self.rho)
+        self.s[slot], self.y[slot], self.z[slot], self.rho[slot] = s, y, z, 1.0 / curvature
+        self.count += 1
+
+    def direction(self, h: np.ndarray, solved: np.ndarray) -> np.ndarray:
+        """``H h`` for the half gradient ``h`` and ``solved = A⁻¹h`` (returned as is, a copy, without history)."""
+        m = min(self.count, len(self.rho))
+        slots = [(self.count - 1 - k) % len(self.rho) for k in range(m)]  # newest first
+        q, r, alphas = h.copy(), solved.copy(), np.empty(m)
+        for k, slot in enumerate(slots):
+            alphas[k] = self.rho[slot] * _dot(self.s[slot], q)
+            q -= alphas[k] * self.y[slot]
+            r -= alphas[k] * self.z[slot]  # r = A⁻¹q
+        if m:
+            r *= 1.0 / (self.rho[slots[0]] * _dot(self.y[slots[0]], self.z[slots[0]]))  # γ = sᵀy / yᵀA⁻¹y
+        for k in reversed(range(m)):
+            slot = slots[k]
+            r += (alphas[k] - self.rho[slot] * _dot(self.y[slot], r)) * self.s[slot]
+        return r
+
+
 class ArapSolver:
     """ARAP (Sorkine & Alexa 2007) on a triangle or tet mesh: cotangent weights, local polar step, global step
     with a prefactored sparse Cholesky; handle vertices eliminated exactly; optional soft linear constraints.
@@ -256,7 +305,8 @@ class ArapSolver:
                 f"ARAP: vertex {vertex} has no stiffness: all its elements are degenerate (zero area or volume)"
             )
         self._system_known = rows[:, self.known].tocsr()
-        self._factor = SparseCholesky(rows[:, self.free]) if len(self.free) else None
+        self._system_free = rows[:, self.free].tocsr()
+        self._factor = SparseCholesky(self._system_free) if len(self.free) else None
 
     # ---- set-up helpers ------------------------------------------------------------------------
     def _check_components(self, elements, ei, ej, constraints) -> None:
@@ -357,15 +407,22 @@ class ArapSolver:
         *,
         max_iterations: int = 200,
         tolerance: float = 1e-6,
+        method: str = "anderson",
         anderson: int = ANDERSON_DEPTH,
     ) -> ArapResult:
         """Minimise E with the fixed vertices at ``fixed_positions (H,3)`` (default: rest) and constraint targets
         ``constraint_targets (m,3)`` (default: ``C·rest``), starting from ``initial (N,3)`` (default: rest), whose
         fixed rows are replaced; all float64 → :class:`ArapResult` (``vertices (N,3) float64``). Stops when the
         relative energy decrease per iteration, averaged over the last :data:`CONVERGENCE_WINDOW` iterations
-        (accelerated steps progress unevenly), is ≤ ``tolerance``, or after ``max_iterations``. ``anderson`` is the
-        acceleration history length (0: plain local/global iterations, whose iterates are libigl's ``arap_solve``
-        iterates)."""
+        (accelerated steps progress unevenly), is ≤ ``tolerance``, or after ``max_iterations``.
+
+        ``method``: ``"anderson"``, local/global iterations Anderson-accelerated with history ``anderson`` (0: plain
+        iterations, whose iterates are libigl's ``arap_solve`` iterates); ``"lbfgs"``, L-BFGS on E (Liu, Bouaziz &
+        Kavan 2017; history :data:`LBFGS_DEPTH`, initial inverse Hessian ``γ A⁻¹``, Armijo backtracking, the plain
+        local/global step when that fails). Both keep E non-increasing and cost one back-substitution per
+        iteration; L-BFGS needs far fewer iterations on large meshes (docs/benchmarks.md, issue 18)."""
+        if method not in METHODS:
+            raise NerfEditError(f"ARAP: unknown method {method!r} (expected one of {list(METHODS)})")
         x = self.rest.copy() if initial is None else np.array(initial, dtype=np.float64) - self.origin
         if x.shape != self.rest.shape or not np.isfinite(x).all():
             raise NerfEditError(f"ARAP: initial must be finite {self.rest.shape}, got {x.shape}")
@@ -384,9 +441,22 @@ class ArapSolver:
             rhs += self.constraint_weight * (self._constraints_t @ targets)[self.free]
 
         rotations, energy = self._local(x, targets)
-        energies, converged = [energy], self._factor is None
+        energies = [energy]
         floor = 1e-20 * max(self._rest_energy, np.finfo(float).tiny)
-        accelerator = _Anderson(anderson, 3 * len(self.free))
+        if self._factor is not None and abs(energy) > floor:
+            iterate = self._lbfgs if method == "lbfgs" else self._anderson
+            x, converged = iterate(x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, anderson)
+        else:
+            converged = True
+        vertices = x + self.origin
+        vertices[self.fixed] = fixed_positions  # exactly, without the round trip through centred coordinates
+        return ArapResult(vertices, len(energies) - 1, energies, bool(converged))
+
+    # ---- minimisers: from centred x (fixed rows set) and its rotations, append to energies, return (x, converged)
+    def _anderson(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, depth):
+        """Local/global iterations Anderson-accelerated (history ``depth``) under the energy guard."""
+        energy, converged = energies[-1], False
+        accelerator = _Anderson(depth, 3 * len(self.free))
         while not converged and len(energies) <= max_iterations:
             plain = self._factor.solve(self._rotated_edges(rotations) + rhs)
             trial = x.copy()
@@ -396,14 +466,56 @@ class ArapSolver:
                 trial[self.free] = plain
                 trial_rotations, trial_energy = self._local(trial, targets)
             if trial_energy > energy:  # only rounding makes a plain step increase E: we are at the minimum
-                converged = True
-                break
+                return x, True
             x, rotations, energy = trial, trial_rotations, trial_energy
             energies.append(energy)
             converged = _converged(energies, tolerance, floor)
-        vertices = x + self.origin
-        vertices[self.fixed] = fixed_positions  # exactly, without the round trip through centred coordinates
-        return ArapResult(vertices, len(energies) - 1, energies, bool(converged))
+        return x, converged
+
+    def _lbfgs(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, _depth):
+        """L-BFGS on E over the free vertices. The half gradient ``h = A x − (K R(x) + b)`` (R(x): the local
+        step's rotations, optimal, so the rotations' own variation drops out) and ``p = A⁻¹h`` give the plain
+        local/global iterate ``x − p``; the L-BFGS step ``x − α H h`` is tried at α = 1, ½, ¼, ⅛ (Armijo), else
+        the plain step is taken and the history cleared, so E never increases."""
+        free, energy = self.free, energies[-1]
+        history = _Lbfgs(LBFGS_DEPTH, (len(free), 3))
+        xf = x[free]
+        h = self._system_free @ xf - self._rotated_edges(rotations) - rhs
+        p = self._factor.solve(h)
+        while len(energies) <= max_iterations:
+            r = history.direction(h, p)
+            slope = _dot(h, r)  # −½ dE/dα along −r
+            if history.count and not slope > 0:  # not a descent direction: start over from the plain step
+                history.reset()
+                r, slope = p, _dot(h, p)
+            trial = x.copy()
+            for attempt in range(LINE_SEARCH_STEPS if history.count else 1):
+                alpha = 0.5**attempt
+                trial[free] = xf - alpha * r
+                trial_rotations, trial_energy = self._local(trial, targets)
+                if trial_energy <= energy - 2.0 * ARMIJO * alpha * slope:
+                    break
+            else:
+                if history.count:  # the plain local/global step
+                    history.reset()
+                    trial[free] = xf - p
+                    trial_rotations, trial_energy = self._local(trial, targets)
+            if trial_energy > energy:  # only rounding makes a plain step increase E: we are at the minimum
+                return x, True
+            new_xf = trial[free]
+            new_h = self._system_free @ new_xf - self._rotated_edges(trial_rotations) - rhs
+            new_p = self._factor.solve(new_h)
+            history.push(new_xf - xf, new_h - h, new_p - p)  # A⁻¹(h⁺ − h) = p⁺ − p: no back-substitution
+            x, xf, h, p, energy = trial, new_xf, new_h, new_p, trial_energy
+            energies.append(energy)
+            if _converged(energies, tolerance, floor):
+                return x, True
+        return x, False
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """``Σ a ⊙ b`` (einsum: BLAS ``ddot`` spends its time in thread start-up at these sizes)."""
+    return float(np.einsum("ij,ij->", a, b))
 
 
 def _converged(energies: list[float], tolerance: float, floor: float) -> bool:

@@ -115,6 +115,24 @@ def test_auto_cage_is_closed_and_encloses_the_mesh():
     assert np.all(np.abs(winding) > 0.5)
 
 
+def test_auto_cage_of_a_dense_mesh_wraps_its_clustering_and_encloses_it(monkeypatch):
+    """From AUTO_CLUSTER_FACES triangles on (lowered here to a fine sphere), the wrap gets the vertex clustering."""
+    import deformers.cage.deformer as cage_module
+
+    mesh = SurfaceMesh.from_trimesh(trimesh.creation.icosphere(subdivisions=5))
+    seen = []
+    wrap = cage_module.wrap_and_decimate
+    monkeypatch.setattr(
+        cage_module, "wrap_and_decimate", lambda v, f, *a, **k: seen.append(len(f)) or wrap(v, f, *a, **k)
+    )
+    monkeypatch.setattr(cage_module, "AUTO_CLUSTER_FACES", 1)
+    monkeypatch.setattr(cage_module, "AUTO_CLUSTER_CELL", 4.0)  # cells of 8 % of the diagonal: few vertices left
+    cage = validate_cage(auto_cage(mesh), "auto")
+    assert seen[0] < len(mesh.faces) / 4
+    _, winding = mean_value_coordinates(mesh.vertices, cage.vertices, cage.faces, return_winding=True)
+    assert np.all(np.abs(winding) > 0.5)
+
+
 def test_coarse_auto_cage_is_rewrapped_until_it_encloses(capsule):
     """Simplifying to very few vertices cuts into the mesh; bind wraps again farther out instead of warning."""
     cage = auto_cage(capsule, max_vertices=40)
@@ -137,6 +155,49 @@ def test_deform_points_cache_follows_its_input():
     assert np.allclose(deformer.deform_points(a, 1), out[1, :20], rtol=0, atol=1e-12)
     assert np.allclose(deformer.deform_points(b, 1), out[1, 20:50], rtol=0, atol=1e-12)  # new points: recomputed
     assert np.allclose(deformer.deform_points(b, 0), out[0, 20:50], rtol=0, atol=1e-12)  # same points, other frame
+
+
+# ---- bounded-memory bind: blocks, float32 or dropped coordinates ------------------------------------------------
+def _repose(deformer, pose):
+    """Re-pose a bound deformer through its public ``deformed_cages`` (as the editor's previews do)."""
+    deformer.deformed_cages = pose[None]
+    return deformer.deform()[0]
+
+
+@pytest.mark.parametrize("coordinates", ["mvc", "green"])
+def test_bind_in_blocks_and_reposing_without_stored_coordinates_match_the_whole_bind(coordinates, files, tmp_path):
+    """bind_block splits the mesh (here into blocks of 7 vertices); weights_budget_mb=0 keeps no coordinates, so a
+    new pose evaluates them again block by block: the same frames as one block with float64 coordinates kept."""
+    small = CAGE.with_vertices(CAGE.vertices * [0.75, 0.75, 0.625])  # some vertices outside: MVC columns for green
+    edit = {"cage": files("cage.ply", small), "handles": default_edit(REST)["handles"], "frames": 2}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole = bind(CageConfig(coordinates=coordinates, bind_block=10**6), edit, tmp_path)
+        blocks = bind(CageConfig(coordinates=coordinates, bind_block=7, weights_budget_mb=0), edit, tmp_path)
+    assert whole._weights[0].dtype == np.float64 and blocks._weights is None
+    assert np.allclose(blocks.deform(), whole.deform(), rtol=0, atol=1e-13)
+    pose = small.vertices @ AFFINE[0].T + AFFINE[1] + np.random.default_rng(0).normal(0, 0.05, small.vertices.shape)
+    assert np.allclose(_repose(blocks, pose), _repose(whole, pose), rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("coordinates", ["mvc", "green"])
+def test_float32_coordinates_repose_within_1e7_of_the_cage_size(coordinates, files, tmp_path):
+    """Coordinates that fit weights_budget_mb only as float32 are kept so: the frames of the bind stay float64
+    (posed while binding), a new pose from float32 coordinates is within 1e-7 × the cage's bounding-box diagonal of
+    the float64 one, also 1e4 cage sizes away from the origin (the pose is taken about the cage's centre)."""
+    far = 1e4 * CAGE.bbox_diagonal
+    rest = REST.with_vertices(REST.vertices + far)
+    cage = CAGE.with_vertices(CAGE.vertices + far)
+    edit = {"cage": files("cage.ply", cage), "handles": default_edit(rest)["handles"]}
+    rows = len(cage.vertices) + (len(cage.faces) if coordinates == "green" else 0)
+    budget = 4.0 * rows * rest.n_vertices / 2**20  # float32 fits, float64 does not
+    exact = bind(CageConfig(coordinates=coordinates), edit, tmp_path, rest=rest)
+    single = bind(CageConfig(coordinates=coordinates, weights_budget_mb=budget), edit, tmp_path, rest=rest)
+    assert exact._weights[0].dtype == np.float64 and single._weights[0].dtype == np.float32
+    assert np.array_equal(single.deform(), exact.deform())
+    pose = cage.vertices + np.random.default_rng(1).normal(0, 0.05, cage.vertices.shape)
+    error = np.abs(_repose(single, pose) - _repose(exact, pose)).max()
+    assert error <= 1e-7 * cage.bbox_diagonal
 
 
 # ---- artifacts -------------------------------------------------------------------------------------------------
@@ -208,7 +269,10 @@ def test_bad_input_is_rejected_naming_file_and_problem(files, tmp_path):
             bind(CageConfig(), edit, tmp_path)
 
 
-@pytest.mark.parametrize("option", [{"chunk_size": 0}, {"auto_alpha": 0.0}, {"auto_max_vertices": 3}])
+@pytest.mark.parametrize(
+    "option",
+    [{"chunk_size": 0}, {"auto_alpha": 0.0}, {"auto_max_vertices": 3}, {"bind_block": 0}, {"weights_budget_mb": -1.0}],
+)
 def test_bad_options_are_rejected(option):
     ((name, value),) = option.items()
     with pytest.raises(NerfEditError, match=rf"{name}: must be .*, got {value}"):

@@ -23,13 +23,20 @@ from nerfedit_plugin.edit.proxy import (
     TetProxy,
     build_proxy,
     cached_proxy,
+    min_distance_to_boundary,
     proxy_cache_key,
     resolve_offset,
     unit_frame,
 )
 from nerfedit_plugin.errors import NerfEditError
-from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.geometry.tets import DEGENERATE_VOLUME_RATIO, boundary_faces, clean_tets, tet_signed_volumes
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, cluster_vertices, grid_cells
+from nerfedit_plugin.geometry.tets import (
+    DEGENERATE_VOLUME_RATIO,
+    boundary_faces,
+    clean_tets,
+    distance_to_boundary,
+    tet_signed_volumes,
+)
 
 FAST = ProxyConfig(cage_faces=400, edge_length_fac=0.1)
 
@@ -228,6 +235,72 @@ def test_cache_key_tracks_mesh_and_parameters():
     same = dataclasses.replace(FAST, offset=resolve_offset(mesh, FAST))
     assert proxy_cache_key(mesh, same) == key
     assert proxy_cache_key(mesh, same, camera_distance=4.0) == key
+
+
+def test_cache_key_names_the_wrap_clustering_only_where_it_applies():
+    """Meshes below wrap_cluster_faces are wrapped as they are: their key ignores both clustering options (the keys
+    of caches and edit folders from before the options stay valid); above it, wrap_cell is part of the key."""
+    mesh = sphere()  # 1280 faces
+    key = proxy_cache_key(mesh, FAST)
+    assert proxy_cache_key(mesh, dataclasses.replace(FAST, wrap_cell=0.5, wrap_cluster_faces=1281)) == key
+    assert proxy_cache_key(mesh, dataclasses.replace(FAST, wrap_cell=0.0, wrap_cluster_faces=10)) == key
+    dense = [
+        proxy_cache_key(mesh, dataclasses.replace(FAST, wrap_cell=c, wrap_cluster_faces=1280)) for c in (0.25, 0.5)
+    ]
+    assert len({key, *dense}) == 3
+
+
+def test_clustered_wrap_gives_a_valid_proxy(monkeypatch):
+    """A surface wrapped through its vertex clustering (wrap_cluster_faces lowered to the test mesh) still meets
+    every invariant: the clustering moves the wrap input by a fraction of the cell, the margin is checked on the
+    surface itself."""
+    mesh = SurfaceMesh.from_trimesh(trimesh.creation.icosphere(subdivisions=5))  # edges ~1/100 of the diagonal
+    config = dataclasses.replace(FAST, wrap_cluster_faces=1, wrap_cell=1.0)  # cells of 1/50 of it
+    seen = []
+    wrap = proxy_module.wrap_and_decimate
+    monkeypatch.setattr(
+        proxy_module, "wrap_and_decimate", lambda v, f, *a, **k: seen.append(len(f)) or wrap(v, f, *a, **k)
+    )
+    proxy = build_proxy(mesh, config)
+    assert seen and seen[0] < len(mesh.faces) / 2  # the wrap got the clustering
+    assert "cluster" in proxy.info["times"]
+    assert_valid_proxy(proxy, mesh, config)
+
+
+def test_cluster_vertices_merges_cells_and_keeps_lone_vertices_exact():
+    rng = np.random.default_rng(0)
+    mesh = torus()
+    clustered = cluster_vertices(mesh, 0.1)
+    cells, owner, low = grid_cells(mesh.vertices, 0.1)
+    assert clustered.n_vertices == len(cells) < mesh.n_vertices
+    for row in rng.choice(len(cells), 20, replace=False):  # each cluster is the mean of its cell's vertices
+        members = mesh.vertices[owner == row]
+        assert np.allclose(clustered.vertices[row], members.mean(0), rtol=0, atol=1e-15)
+        assert (np.floor((members - low) / 0.1) == cells[row]).all()
+    corners = owner[mesh.faces]
+    kept = (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2]) & (corners[:, 2] != corners[:, 0])
+    assert np.array_equal(clustered.faces, corners[kept])
+    fine = cluster_vertices(mesh, 1e-6)  # every vertex alone in its cell: the mesh itself, bit for bit
+    lone = grid_cells(mesh.vertices, 1e-6)[1]
+    assert np.array_equal(fine.vertices[lone], mesh.vertices) and np.array_equal(fine.faces, lone[mesh.faces])
+
+
+def test_grid_cells_sparse_and_dense_agree_with_unique():
+    points = np.random.default_rng(1).normal(size=(5000, 3))
+    for cell in (0.05, 1e-4):  # a grid small enough for flags, and one that needs the sort
+        cells, owner, low = grid_cells(points, cell)
+        ijk = np.floor((points - low) / cell).astype(np.int64)
+        expected, inverse = np.unique(ijk, axis=0, return_inverse=True)
+        assert np.array_equal(cells, expected) and np.array_equal(owner, inverse.ravel())
+
+
+@pytest.mark.parametrize("make", [torus, open_hemisphere], ids=lambda f: f.__name__)
+def test_pruned_margin_is_the_full_minimum_bit_for_bit(make, monkeypatch):
+    mesh, proxy = built(make)
+    monkeypatch.setattr(proxy_module, "PRUNED_MARGIN_POINTS", 0)
+    full = float(distance_to_boundary(proxy.vertices, proxy.tets, mesh.vertices).min())
+    for cell in (0.01, 0.05, 0.3):
+        assert min_distance_to_boundary(proxy.vertices, proxy.tets, mesh.vertices, cell * mesh.bbox_diagonal) == full
 
 
 def test_save_load_roundtrip_and_bad_files(tmp_path):

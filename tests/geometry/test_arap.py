@@ -212,22 +212,43 @@ def cow():
     return sample_mesh("cow.obj")
 
 
-def test_identity_edit_returns_rest(cow):
+@pytest.mark.parametrize("method", ["anderson", "lbfgs"])
+def test_identity_edit_returns_rest(cow, method):
     vertices, faces = cow
     handles, targets = bend_handles(vertices)
-    result = ArapSolver(vertices, faces, fixed=handles).solve(vertices[handles])
-    assert result.converged
+    result = ArapSolver(vertices, faces, fixed=handles).solve(vertices[handles], method=method)
+    assert result.converged and result.iterations == 0  # E at rest is below the floor: nothing to do
     assert np.abs(result.vertices - vertices).max() <= 1e-12 * bbox(vertices)
 
 
-def test_handles_exact_and_rigid_motion_reproduced():
+@pytest.mark.parametrize("method", ["anderson", "lbfgs"])
+def test_handles_exact_and_rigid_motion_reproduced(method):
     sphere = trimesh.creation.icosphere(subdivisions=3)
     vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)
     handles, _ = bend_handles(vertices)
     moved = rigid(vertices)
-    result = ArapSolver(vertices, faces, fixed=handles).solve(moved[handles], tolerance=1e-9)
+    result = ArapSolver(vertices, faces, fixed=handles).solve(moved[handles], tolerance=1e-9, method=method)
     assert np.array_equal(result.vertices[handles], moved[handles])
     assert np.abs(result.vertices - moved).max() <= 1e-6 * bbox(vertices)
+
+
+@pytest.mark.parametrize("elements", ["surface", "tets"])
+def test_lbfgs_reaches_the_anderson_minimum(elements):
+    """Same converged minimiser, energies non-increasing, handles exact; the first L-BFGS step (no history yet) is
+    the plain local/global iterate."""
+    vertices, elements = tet_grid(8) if elements == "tets" else capsule()
+    handles, targets = bend_handles(vertices, degrees=30.0)
+    solver = ArapSolver(vertices, elements, fixed=handles)
+    anderson = solver.solve(targets, max_iterations=1000, tolerance=1e-14)
+    lbfgs = solver.solve(targets, max_iterations=1000, tolerance=1e-14, method="lbfgs")
+    assert anderson.converged and lbfgs.converged
+    assert np.abs(lbfgs.vertices - anderson.vertices).max() <= 1e-6 * bbox(vertices)
+    assert lbfgs.energies[-1] == pytest.approx(anderson.energies[-1], rel=1e-9)
+    assert np.all(np.diff(lbfgs.energies) <= 0) and lbfgs.energies[-1] < 0.5 * lbfgs.energies[0]
+    assert np.array_equal(lbfgs.vertices[handles], targets)
+    plain = solver.solve(targets, max_iterations=1, tolerance=0.0, anderson=0)
+    first = solver.solve(targets, max_iterations=1, tolerance=0.0, method="lbfgs")
+    assert np.abs(first.vertices - plain.vertices).max() <= 1e-12 * bbox(vertices)
 
 
 @functools.cache
@@ -256,6 +277,10 @@ def test_energy_non_increasing_with_negative_weights(mesh, energy):
     accelerated = solver.solve(targets, max_iterations=40, tolerance=0.0)
     assert np.all(np.diff(accelerated.energies) <= 0)
     assert accelerated.energies[-1] <= energies[-1]
+    lbfgs = solver.solve(targets, max_iterations=40, tolerance=0.0, method="lbfgs")
+    assert np.all(np.diff(lbfgs.energies) <= 0)  # the Armijo search, else the plain step
+    assert lbfgs.energies[-1] <= energies[-1]
+    assert np.array_equal(lbfgs.vertices[handles], targets)
 
 
 def _igl_converged(vertices, elements, energy_type, handles, targets, iterations: int) -> np.ndarray:
@@ -323,12 +348,13 @@ def barycentric_rows(tets: np.ndarray, n_vertices: int, count: int, seed: int = 
     return sp.csr_matrix((bary.ravel(), (rows, tets[which].ravel())), shape=(count, n_vertices))
 
 
-def test_soft_constraints_rigid_targets_give_rigid_result():
+@pytest.mark.parametrize("method", ["anderson", "lbfgs"])
+def test_soft_constraints_rigid_targets_give_rigid_result(method):
     vertices, tets = tet_grid()
     constraints = barycentric_rows(tets, len(vertices), 2 * len(vertices))  # more rows than vertices
     solver = ArapSolver(vertices, tets, energy="elements", constraints=constraints, constraint_weight=100.0)
     moved = rigid(vertices)
-    result = solver.solve(constraint_targets=constraints @ moved, tolerance=1e-12)
+    result = solver.solve(constraint_targets=constraints @ moved, tolerance=1e-12, method=method)
     assert np.abs(result.vertices - moved).max() <= 1e-6 * bbox(vertices)
     assert np.abs(constraints @ result.vertices - constraints @ moved).max() <= 1e-6 * bbox(vertices)
 
@@ -373,6 +399,8 @@ def test_bad_arguments_are_named():
     solver = ArapSolver(vertices, faces, fixed=[0, 1])
     with pytest.raises(NerfEditError, match="fixed_positions"):
         solver.solve(np.zeros((3, 3)))
+    with pytest.raises(NerfEditError, match="unknown method"):
+        solver.solve(method="newton")
 
 
 def test_unreferenced_vertex_stays_put():

@@ -1,0 +1,77 @@
+"""SurfaceMesh files: PLY files read through Open3D give what trimesh reads, keep the file's vertex order, and
+files Open3D reads no triangles from are left to trimesh."""
+
+import numpy as np
+import open3d as o3d
+import pytest
+import trimesh
+
+from nerfedit_plugin.geometry.mesh import SurfaceMesh, _read_ply_open3d
+
+RNG = np.random.default_rng(0)
+MESH = SurfaceMesh.from_trimesh(trimesh.creation.icosphere(subdivisions=2))
+COLORS = RNG.integers(0, 256, (MESH.n_vertices, 3)) / 255.0
+
+
+def _by_trimesh(path):
+    return SurfaceMesh.from_trimesh(trimesh.load(path, process=False, force="mesh", maintain_order=True))
+
+
+def _equal(a, b):
+    colors = (a.vertex_colors is None and b.vertex_colors is None) or (
+        a.vertex_colors is not None and b.vertex_colors is not None and np.array_equal(a.vertex_colors, b.vertex_colors)
+    )
+    return np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces) and colors
+
+
+def _open3d_normals(mesh, path):
+    o3d_mesh = mesh.to_open3d()
+    o3d_mesh.compute_vertex_normals()
+    o3d.io.write_triangle_mesh(str(path), o3d_mesh, write_vertex_normals=True)
+
+
+WRITERS = {
+    "open3d float64": lambda path: MESH.save(path),
+    "open3d colours": lambda path: SurfaceMesh(MESH.vertices, MESH.faces, COLORS).save(path),
+    "open3d uniform colour": lambda path: SurfaceMesh(
+        MESH.vertices, MESH.faces, np.full((MESH.n_vertices, 3), 0.5)
+    ).save(path),
+    "open3d normals": lambda path: _open3d_normals(MESH, path),
+    "trimesh float32": lambda path: MESH.to_trimesh().export(path),
+    "trimesh colours": lambda path: SurfaceMesh(MESH.vertices, MESH.faces, COLORS).to_trimesh().export(path),
+}
+
+
+@pytest.mark.parametrize("writer", WRITERS)
+def test_ply_is_read_by_open3d_as_trimesh_reads_it(writer, tmp_path):
+    path = tmp_path / "mesh.ply"
+    WRITERS[writer](path)
+    fast = _read_ply_open3d(path)
+    assert fast is not None
+    assert _equal(fast, _by_trimesh(path)) and _equal(SurfaceMesh.load(path), fast)
+
+
+def test_ascii_ply_and_shuffled_vertex_order_are_kept(tmp_path):
+    order = RNG.permutation(MESH.n_vertices)
+    inverse = np.argsort(order)
+    shuffled = SurfaceMesh(MESH.vertices[order], inverse[MESH.faces])
+    shuffled.to_trimesh().export(tmp_path / "ascii.ply", encoding="ascii")
+    loaded = SurfaceMesh.load(tmp_path / "ascii.ply")  # the text parsed as float64 (trimesh: as its float32 type)
+    assert np.allclose(loaded.vertices, shuffled.vertices, atol=1e-6) and np.array_equal(loaded.faces, shuffled.faces)
+
+
+def test_a_ply_without_triangles_is_left_to_trimesh(tmp_path):
+    trimesh.PointCloud(MESH.vertices).export(tmp_path / "points.ply")
+    assert _read_ply_open3d(tmp_path / "points.ply") is None
+    with pytest.raises(Exception, match="points.ply: no triangles in file"):
+        SurfaceMesh.load(tmp_path / "points.ply")
+
+
+def test_a_bad_index_in_a_fast_read_file_names_the_file(tmp_path):
+    path = tmp_path / "bad.ply"
+    SurfaceMesh(MESH.vertices, MESH.faces).save(path)
+    data = bytearray(path.read_bytes())
+    data[-4:] = np.array([10**6], dtype="<u4").tobytes()  # last corner of the last face out of range
+    path.write_bytes(bytes(data))
+    with pytest.raises(Exception, match="bad.ply: mesh faces: face"):
+        SurfaceMesh.load(path)
