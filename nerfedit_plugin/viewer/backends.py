@@ -37,7 +37,9 @@ PREVIEW_ITERATIONS = 2
 iterations Anderson acceleration's extra local steps cost more than they gain (bunny drag: 81 vs 152 ms per move,
 +53 % vs +42 % energy above the converged solve; docs/benchmarks.md)."""
 CONVERGE_CHUNK = 5
-"""ARAP iterations between two checks that a settle-on-release is still wanted."""
+"""ARAP iterations between two checks that a settle-on-release is still wanted. The settle uses Anderson, not the
+deformer's L-BFGS: restarted every 5 iterations, L-BFGS loses its history (bunny head edit: 66 iterations vs
+Anderson's 56 to the stopping test)."""
 
 
 class EditingBackend(abc.ABC):
