@@ -18,6 +18,7 @@ from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.timing import Span
 
 
 @dataclasses.dataclass
@@ -55,6 +56,7 @@ class ArapDeformer(Deformer):
         self.rest = rest
         # validates the spec before any factorising
         self.handles, self.targets = edit.handle_targets(rest.vertices, rest.faces)
+        self.on_progress(0, None, "factorising")
         try:
             self.solver = ArapSolver(rest.vertices, rest.faces, energy=self.config.energy, fixed=self.handles)
         except NerfEditError as exc:
@@ -62,16 +64,21 @@ class ArapDeformer(Deformer):
         self.results: list[ArapResult] = []
 
     def deform(self) -> np.ndarray:
-        """Solve every frame, warm-starting from the previous one; ``results`` keeps each frame's statistics."""
+        """Solve every frame, warm-starting from the previous one; ``results`` keeps each frame's statistics.
+        Progress: ``max_iterations`` units per frame, one per iteration (a frame that converges jumps to its end)."""
         frames, previous, self.results = [], None, []
-        for targets in self.targets:
+        per_frame, n = self.config.max_iterations, len(self.targets)
+        for f, targets in enumerate(self.targets):
+            span = Span(self.on_progress, f * per_frame, per_frame, n * per_frame, f"frame {f + 1}/{n}")
             result = self.solver.solve(
                 targets,
                 initial=previous,
                 max_iterations=self.config.max_iterations,
                 tolerance=self.config.tolerance,
                 method=self.config.solver,
+                callback=span.iterations(),
             )
+            span.end(f"{result.iterations} iteration{'s' * (result.iterations != 1)}")
             self.results.append(result)
             frames.append(result.vertices)
             previous = result.vertices

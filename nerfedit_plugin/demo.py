@@ -33,7 +33,7 @@ from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.io.run import extract_mesh, train_run
 from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover
 from nerfedit_plugin.render.views import default_render_config, render_views, turntable_cameras, write_gif, write_images
-from nerfedit_plugin.timing import Stopwatch
+from nerfedit_plugin.timing import ProgressListener, Stopwatch, labelled
 from nerfedit_plugin.training.metrics import evaluate_folders
 
 
@@ -102,14 +102,17 @@ def run_demo(
     cache_dir: str | os.PathLike | None = None,
     progress: bool = True,
     on_stage: Callable[[str], None] | None = None,
+    on_progress: ProgressListener | None = None,
     record: Any = None,
 ) -> dict:
     """Run the demo into ``out`` (see the module docstring); returns ``{"out", "seconds" (per stage), "before" and
     "after" (mean PSNR/SSIM/LPIPS, see the module docstring), "edit" (the edit report), "files"}``, also written to
-    ``out/summary.json``; ``record`` (the command line's args) goes to ``out/config.yml``."""
+    ``out/summary.json``; ``record`` (the command line's args) goes to ``out/config.yml``. ``on_stage`` and
+    ``on_progress``: as :func:`~nerfedit_plugin.edit.job.run_edit`'s, for the demo's stages (the edit's own stages
+    and progress are the ``edit`` stage's progress)."""
     sizes = PRESETS[preset]
     registry = discover()
-    clock = Stopwatch(on_stage)
+    clock = Stopwatch(on_stage, on_progress=on_progress)
     start = time.perf_counter()
     with atomic_dir(out, overwrite) as stage:
         with clock.stage("generate"):
@@ -147,6 +150,8 @@ def run_demo(
                 camera_distance=run.camera_distance(),
                 cache_dir=cache_dir or stage / "cache",
                 record={"deformer": "arap", "edit": str(spec)},
+                on_stage=lambda name: clock.progress(0, None, name),
+                on_progress=lambda name, done, total, detail: labelled(clock.progress, name)(done, total, detail),
             )
         with clock.stage("render"):
             trained = run.field()

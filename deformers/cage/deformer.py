@@ -183,6 +183,7 @@ class CageDeformer(Deformer):
             label = f"{edit.source}: cage: {edit.path('cage')}"
             loaded = _load_cage(edit, "cage")
             cage = validate_cage(loaded, label)
+            self.on_progress(0, None, "inside/outside the cage")
             inside, outside = enclosure(rest.vertices, cage)
 
         if has_target:
@@ -226,6 +227,7 @@ class CageDeformer(Deformer):
         then wrap again farther out (offset ×2, ×4) until every vertex is inside."""
         cfg = self.config
         for attempt in range(3):
+            self.on_progress(0, None, "automatic cage" + (f" (offset ×{2**attempt})" if attempt else ""))
             wrap = auto_cage(rest, cfg.auto_alpha, cfg.auto_offset * 2**attempt, cfg.auto_max_vertices)
             cage = validate_cage(wrap, label)
             masks = enclosure(rest.vertices, cage)
@@ -262,7 +264,7 @@ class CageDeformer(Deformer):
     ) -> tuple[tuple[np.ndarray, np.ndarray | None] | None, np.ndarray]:
         """Coordinates of the bound points evaluated block by block (``bind_block`` points) and applied to
         ``poses (frames, C, 3)`` → ``(the coordinates as :meth:`_stored_dtype` keeps them, or None; frames
-        (frames, V, 3) float64)``. Only ``keep`` stores coordinates."""
+        (frames, V, 3) float64)``. Only ``keep`` stores coordinates. Progress: one unit per block."""
         cage, points, inside = self.rest_cage, self._points, self._inside
         n, block = len(points), self.config.bind_block
         dtype = self._stored_dtype() if keep else None
@@ -275,7 +277,9 @@ class CageDeformer(Deformer):
             )
         terms = [green_face_terms(cage.vertices, pose, cage.faces) for pose in poses] if green else None
         frames = np.empty((len(poses), n, 3))
-        for start in range(0, n, block):
+        blocks, what = -(-n // block), "Green" if green else "mean value"
+        for b, start in enumerate(range(0, n, block)):
+            self.on_progress(b, blocks, f"{what} coordinates of {n} vertices")
             part = slice(start, min(start + block, n))
             phi_t, psi_t = self._coordinates(points[part], inside[part])
             for f, pose in enumerate(poses):
@@ -284,6 +288,7 @@ class CageDeformer(Deformer):
                 stored[0][:, part] = phi_t
                 if green:
                     stored[1][:, part] = psi_t
+        self.on_progress(blocks, blocks, f"{what} coordinates of {n} vertices")
         return stored, frames
 
     # ---- evaluation --------------------------------------------------------------------------------------------

@@ -251,6 +251,7 @@ class SkeletonDeformer(Deformer):
                 nearest=cfg.heat_bones,
                 visibility=cfg.visibility,
                 strength=cfg.heat_strength,
+                progress=self.on_progress,
             )
         self.skeleton, self.rest = skeleton, rest
         self.binding = Binding.create(rest.vertices, normalize_weights(weights, cfg.weight_threshold))
@@ -334,7 +335,12 @@ class SkeletonDeformer(Deformer):
         return self.binding.weights
 
     def deform(self) -> np.ndarray:
-        return np.stack([self._skin(self.binding, f) for f in range(self.n_frames)])
+        frames, what = [], f"skinning ({self.config.method})"
+        for f in range(self.n_frames):
+            self.on_progress(f, self.n_frames, what)
+            frames.append(self._skin(self.binding, f))
+        self.on_progress(self.n_frames, self.n_frames, what)
+        return np.stack(frames)
 
     def deform_points(self, points: np.ndarray, frame: int) -> np.ndarray:
         points = np.asarray(points, dtype=np.float64)

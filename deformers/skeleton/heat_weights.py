@@ -15,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, cotangent_weights
+from nerfedit_plugin.timing import Progress, no_progress
 
 #: relative distance within which bones count as equidistant from a vertex
 TIE_TOLERANCE = 1e-6
@@ -98,9 +99,11 @@ def bone_heat_weights(
     nearest: int = 1,
     visibility: bool = True,
     strength: float = 1.0,
+    progress: Progress = no_progress,
 ) -> np.ndarray:
     """vertices (V,3) float, faces (F,3) int, heads (J,3) float, tails (J,3) float → skinning weights ``(V,J)``
-    float64 of the bones ``heads[j] → tails[j]`` on the triangle mesh, in [0, 1], rows summing to 1."""
+    float64 of the bones ``heads[j] → tails[j]`` on the triangle mesh, in [0, 1], rows summing to 1. ``progress``
+    is told each step (visibility, factorisation, solve)."""
     from cholespy import CholeskySolverD, MatrixType
 
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -112,6 +115,7 @@ def bone_heat_weights(
     closest, dist = closest_on_segments(vertices, heads, tails)
     allowed = np.ones(dist.shape, dtype=bool)
     if visibility and len(faces):
+        progress(0, None, "bone-heat weights: visibility")
         origins = np.repeat(vertices, len(heads), axis=0)
         allowed = ~occluded(vertices, faces, origins, closest.reshape(-1, 3)).reshape(dist.shape)
     p, d = heat_sources(dist, allowed, nearest)
@@ -129,11 +133,13 @@ def bone_heat_weights(
     seen = np.isfinite(d)
     heat[seen] = counts[seen] * strength / np.maximum(d[seen], MIN_DISTANCE * diag) ** 2
     system = (stiffness + sp.diags(mass * heat)).tocoo()
+    progress(0, None, "bone-heat weights: factorising")
     solver = CholeskySolverD(
         n, system.row.astype(np.int32), system.col.astype(np.int32), np.ascontiguousarray(system.data), MatrixType.COO
     )
     rhs = np.ascontiguousarray((mass * heat)[:, None] * p)
     weights = np.zeros_like(rhs)
+    progress(0, None, f"bone-heat weights: solving for {len(heads)} bones")
     solver.solve(rhs, weights)
     weights = np.clip(weights, 0.0, None)
     return weights / weights.sum(1, keepdims=True)

@@ -25,16 +25,18 @@ class DemoArgs:
 
 
 def demo(args: DemoArgs) -> None:
+    from nerfedit_plugin.cli.edit import StageProgress
     from nerfedit_plugin.demo import run_demo
 
-    with console.status("demo") as status:
+    with StageProgress(console) as stages:
         summary = run_demo(
             args.out,
             preset=args.preset,
             field=args.field,
             overwrite=args.overwrite,
             progress=False,
-            on_stage=lambda stage: status.update(f"[bold]demo: {stage}[/]"),
+            on_stage=stages.on_stage,
+            on_progress=stages.on_progress,
             record=recorded(args),
         )
     print_table(

@@ -2,7 +2,8 @@
 
 Life cycle: ``deformer = config.setup(); deformer.bind(rest, edit); frames = deformer.deform()``.
 Required: :meth:`Deformer.bind` and :meth:`Deformer.deform`. Every optional hook is declared here with its default;
-docs/plugins.md shows a whole plugin.
+docs/plugins.md shows a whole plugin. A deformer may report the progress of a long ``bind`` or ``deform`` through
+:attr:`Deformer.on_progress` (the edit job's progress display).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 from nerfedit_plugin.config import InstantiateConfig
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.timing import Progress, no_progress
 
 
 @dataclasses.dataclass
@@ -45,6 +47,11 @@ class Deformer(abc.ABC):
     """
 
     spec_keys: ClassVar[frozenset[str]] = frozenset({"handles"})
+
+    on_progress: Progress = staticmethod(no_progress)
+    """``self.on_progress(done, total=None, detail="")`` (:class:`~nerfedit_plugin.timing.Progress`): how far a long
+    :meth:`bind` or :meth:`deform` is (vertex blocks, solver iterations; ``total`` None for a single long call). The
+    edit job sets it on the instance before :meth:`bind`; default: nobody listens. Calling it is optional."""
 
     def __init__(self, config: DeformerConfig) -> None:
         self.config = config

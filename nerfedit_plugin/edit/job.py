@@ -32,7 +32,7 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.quality import edit_warnings
-from nerfedit_plugin.timing import Stopwatch, peak_rss_mb
+from nerfedit_plugin.timing import ProgressListener, Stopwatch, peak_rss_mb
 
 
 def default_cache_dir() -> Path:
@@ -126,13 +126,19 @@ def run_edit(
     overwrite: bool = False,
     record: dict | None = None,
     on_stage: Callable[[str], None] | None = None,
+    on_progress: ProgressListener | None = None,
 ) -> EditResult:
     """Run one edit end to end; ``record`` is the full config written to ``config.yml``. ``lift_config`` and
     ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``. ``proxy_from`` (an earlier edit's folder or
     ``deformation.npz``) reuses its proxy instead of building one (:func:`reuse_proxy`). ``source_to_world`` (4,4):
     where a spec with ``frame: source`` is mapped from (a run's :meth:`~nerfedit_plugin.io.run.Run.source_transform`;
     None: the identity, the mesh is its own source). ``base``: the edit whose deformed mesh ``mesh`` is; the saved
-    deformation chains onto it. A spec with ``objects`` runs :func:`~nerfedit_plugin.edit.objects.run_objects_edit`."""
+    deformation chains onto it. A spec with ``objects`` runs :func:`~nerfedit_plugin.edit.objects.run_objects_edit`.
+
+    ``on_stage(name)`` is called as each stage starts (load, bind, deform, proxy, lift, write) and
+    ``on_progress(stage, done, total, detail)`` with the stage's :class:`~nerfedit_plugin.timing.Progress` reports
+    (the deformer's :attr:`~nerfedit_plugin.edit.deformer.Deformer.on_progress`, the proxy build's steps, the
+    lift's frames and iterations)."""
     if is_objects_spec(edit):
         if proxy_from is not None:
             raise NerfEditError("--proxy-from: not available for a scene edit (a spec with 'objects')")
@@ -152,11 +158,12 @@ def run_edit(
                 overwrite=overwrite,
                 record=record,
                 on_stage=on_stage,
+                on_progress=on_progress,
             )
         )
     lift_config = LiftConfig() if lift_config is None else lift_config
     proxy_config = ProxyConfig() if proxy_config is None else proxy_config
-    clock = Stopwatch(on_stage)
+    clock = Stopwatch(on_stage, on_progress=on_progress)
     with clock.stage("load"):
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
         target_cls = deformer._target
@@ -165,6 +172,7 @@ def run_edit(
     with atomic_dir(out, overwrite=overwrite) as stage:
         with clock.stage("bind"):
             model = deformer.setup()
+            model.on_progress = clock.progress
             model.bind(rest, spec)
         with clock.stage("deform"):
             frames = model.deform()
@@ -173,9 +181,11 @@ def run_edit(
             if proxy_from is not None:
                 proxy, cached = reuse_proxy(proxy_from, rest, proxy_config, camera_distance), True
             else:
-                proxy, cached = cached_proxy(rest, proxy_config, cache_dir or default_cache_dir(), camera_distance)
+                proxy, cached = cached_proxy(
+                    rest, proxy_config, cache_dir or default_cache_dir(), camera_distance, progress=clock.progress
+                )
         with clock.stage("lift"):
-            lifter = Lift(proxy, rest, lift, lift_config, deformer=model, edit=spec)
+            lifter = Lift(proxy, rest, lift, lift_config, deformer=model, edit=spec, progress=clock.progress)
             lifted, reports = lifter(frames)
         with clock.stage("write"):
             names = (

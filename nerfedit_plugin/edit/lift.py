@@ -31,6 +31,7 @@ from nerfedit_plugin.geometry.injective import InjectiveSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.refine import bisect
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
+from nerfedit_plugin.timing import Progress, Span, no_progress
 
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
@@ -133,10 +134,15 @@ class Lift:
         *,
         deformer: Deformer | None = None,
         edit: EditSpec | None = None,
+        progress: Progress = no_progress,
     ) -> None:
         config = LiftConfig() if config is None else config
         self.rest, self.method, self.config = rest, method, config
         self.deformer, self.edit = deformer, edit
+        self.progress = progress
+        """Told of the factorisations and, per frame and refinement round, of the solver's iterations (``__call__``:
+        ``max_iterations`` units per frame and round for the ARAP lifts, else 1; a lift that needs fewer rounds
+        jumps to the end)."""
         self.rest_normals = face_normals(rest.vertices, rest.faces)
         used = np.zeros(rest.n_vertices, dtype=bool)
         used[rest.faces.ravel()] = True  # np.unique(rest.faces), without sorting the 3F corners
@@ -149,6 +155,8 @@ class Lift:
         if method == "tet-edit" and (edit is None or not edit.handles):
             raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
         self.refinements = 0  # bisections of the proxy done (self.proxy is the refined one)
+        if method in ("tet-arap", "tet-edit"):
+            progress(0, None, f"factorising ({len(proxy.tets)} tets)")
         self._bind(proxy)
 
     def _bind(self, proxy: TetProxy) -> None:
@@ -169,9 +177,12 @@ class Lift:
             rows = np.arange(len(fixed))
             self._soft = sp.csr_matrix((np.ones(len(fixed)), (rows, fixed)), shape=(len(fixed), len(proxy.vertices)))
 
-    def frame(self, index: int, surface: np.ndarray, previous: np.ndarray | None) -> tuple[np.ndarray, int]:
+    def frame(
+        self, index: int, surface: np.ndarray, previous: np.ndarray | None, span: Span | None = None
+    ) -> tuple[np.ndarray, int]:
         """Frame ``index``: surface (V,3) float64, previous proxy frame (N,3) float64 or None (warm start) →
-        (deformed proxy vertices (N,3) float64, ARAP iteration count; 0 for the direct methods)."""
+        (deformed proxy vertices (N,3) float64, ARAP iteration count; 0 for the direct methods). ``span``: the
+        frame's part of the progress bar (told each ARAP iteration)."""
         method, proxy = self.method, self.proxy
         if method == "knn3":
             return proxy.vertices + knn3_displacements(self.rest.vertices, surface, proxy.vertices), 0
@@ -180,6 +191,8 @@ class Lift:
         if method == "direct":
             return np.asarray(self.deformer.deform_points(proxy.vertices, index), dtype=np.float64), 0
         kwargs = dict(max_iterations=self.config.max_iterations, tolerance=self.config.tolerance)
+        if span is not None:
+            kwargs["callback"] = span.iterations()
         if method == "tet-edit":
             targets = self.handle_targets[index]
             result = self.solver.solve(fixed_positions=targets, initial=previous, **kwargs)
@@ -192,6 +205,8 @@ class Lift:
             result = self.solver.solve(constraint_targets=targets, initial=initial, **kwargs)
         if not self.config.injective or self.folds(result.vertices) == 0:
             return result.vertices, result.iterations
+        if span is not None:
+            span.at(detail="inversion-free re-lift")
         return self.unfolded(targets, previous, result.iterations)
 
     def folds(self, deformed: np.ndarray) -> int:
@@ -251,11 +266,20 @@ class Lift:
         excess = np.maximum(residual / self.config.residual_target, 1.0)
         return np.ceil(np.log(excess) / np.log(4.0)).astype(np.int64)
 
-    def _lift(self, frames: np.ndarray, starts: np.ndarray | None) -> tuple[np.ndarray, list[FrameReport]]:
+    def _lift(
+        self, frames: np.ndarray, starts: np.ndarray | None, bar: tuple[int, int, str]
+    ) -> tuple[np.ndarray, list[FrameReport]]:
+        """Lift every frame (warm-started from the previous one, or from ``starts``); ``bar``: (units done before,
+        total units, label) of the progress."""
         out, reports, previous = [], [], None
+        units = self._units()
         for index, surface in enumerate(frames):
             start = time.perf_counter()
-            deformed, iterations = self.frame(index, surface, previous if starts is None else starts[index])
+            label = f"{bar[2]}frame {index + 1}/{len(frames)}"
+            span = Span(self.progress, bar[0] + index * units, units, bar[1], label)
+            span.at(0)
+            deformed, iterations = self.frame(index, surface, previous if starts is None else starts[index], span)
+            span.end(f"{iterations} iteration{'s' * (iterations != 1)}" if iterations else "")
             reports.append(self.report(deformed, surface, iterations, time.perf_counter() - start))
             out.append(deformed)
             previous = deformed
@@ -266,13 +290,18 @@ class Lift:
         iterations and seconds summed over the refinement rounds). Frames are warm-started from the previous frame;
         after a refinement (tet-arap), from their own lift prolonged onto the refined proxy, now ``self.proxy``."""
         frames = np.asarray(frames, dtype=np.float64)
-        lifted, reports = self._lift(frames, None)
+        rounds = self.config.refine_rounds if self.method == "tet-arap" else 0
+        per_pass = len(frames) * self._units()
+        total = (1 + rounds) * per_pass
+        lifted, reports = self._lift(frames, None, (0, total, ""))
         residual = self.residuals(lifted, frames) if self.method == "tet-arap" else None
         stuck = np.zeros(len(self.surface), dtype=bool)
-        for _ in range(self.config.refine_rounds if self.method == "tet-arap" else 0):
+        for round_ in range(1, rounds + 1):
             need = np.where(stuck, 0, np.minimum(self.bisections_needed(residual), MAX_BISECTIONS))
             if not need.any():
                 break
+            label = f"refinement {round_}/{rounds} · "
+            self.progress(round_ * per_pass, total, f"{label}bisecting, factorising")
             kept = (self.proxy, self.refinements, lifted, reports)
             proxy = self.proxy
             for level in range(int(need.max())):
@@ -283,7 +312,7 @@ class Lift:
                 lifted = np.stack([refinement.prolong(x) for x in lifted])
                 self.refinements += 1
             self._bind(proxy)
-            lifted, again = self._lift(frames, lifted)
+            lifted, again = self._lift(frames, lifted, (round_ * per_pass, total, label))
             reports = [
                 dataclasses.replace(new, iterations=old.iterations + new.iterations, seconds=old.seconds + new.seconds)
                 for old, new in zip(reports, again)
@@ -292,7 +321,13 @@ class Lift:
             improved = (need > 0) & (residual <= STUCK * before)
             if not improved.any():  # the round helped no vertex: keep the proxy and lift it had
                 proxy, self.refinements, lifted, reports = kept
+                self.progress((round_ + 1) * per_pass, total, f"{label}no gain: back to the proxy before")
                 self._bind(proxy)
                 break
             stuck |= (need > 0) & ~improved  # not the fit's error there: no finer proxy helps these
+        self.progress(total, total, f"{len(frames)} frame(s), {self.refinements} bisection(s)")
         return lifted, reports
+
+    def _units(self) -> int:
+        """Progress units of one frame's lift: ``max_iterations`` for the ARAP lifts, else 1."""
+        return self.config.max_iterations if self.method in ("tet-arap", "tet-edit") else 1

@@ -61,7 +61,7 @@ from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
 from nerfedit_plugin.quality import edit_warnings
 from nerfedit_plugin.registry import DEFORMERS, discover
-from nerfedit_plugin.timing import Stopwatch, peak_rss_mb
+from nerfedit_plugin.timing import Progress, ProgressListener, Stopwatch, labelled, no_progress, peak_rss_mb
 
 OBJECT_KEYS = ("name", "select", "deformer", "edit", "place", "remove", "copies", "vacated")
 VACATED = ("empty", "fill")
@@ -227,16 +227,25 @@ class _Placed:
 
 
 def _run_instance(
-    inst: InstanceSpec, surface: SurfaceMesh, proxy: TetProxy, lift: LiftMethod, lift_config: LiftConfig, stage: Path
+    inst: InstanceSpec,
+    surface: SurfaceMesh,
+    proxy: TetProxy,
+    lift: LiftMethod,
+    lift_config: LiftConfig,
+    stage: Path,
+    progress: Progress = no_progress,
 ) -> _Placed:
-    """Deform (when the instance has an edit), lift, place one instance."""
+    """Deform (when the instance has an edit), lift, place one instance (each step told to ``progress``)."""
     report = {"name": inst.name, "deformer": None, "lift": None}
     frames, lifted, used = surface.vertices[None], proxy.vertices[None], proxy
     if inst.edit is not None:
         model = inst.deformer.setup()
+        model.on_progress = labelled(progress, f"{inst.name} bind")
         model.bind(surface, inst.edit)
+        model.on_progress = labelled(progress, f"{inst.name} deform")
         frames = model.deform()
-        lifter = Lift(proxy, surface, lift, lift_config, deformer=model, edit=inst.edit)
+        lift_progress = labelled(progress, f"{inst.name} lift")
+        lifter = Lift(proxy, surface, lift, lift_config, deformer=model, edit=inst.edit, progress=lift_progress)
         lifted, reports = lifter(frames)
         used = lifter.proxy
         report.update(
@@ -352,14 +361,16 @@ def run_objects_edit(
     overwrite: bool = False,
     record: dict | None = None,
     on_stage: Callable[[str], None] | None = None,
+    on_progress: ProgressListener | None = None,
 ) -> tuple[Path, dict]:
     """Run a scene edit (module docstring) end to end → ``(out, report)``. Writes ``deformation.npz`` (format 2),
     ``deformed_mesh.ply`` (the whole edited scene; sequences ``deformed_mesh_0000.ply`` …), the spec, ``config.yml``,
     ``report.json`` and each deformer's artifacts under ``objects/<instance>/``. ``base``: as
-    :func:`~nerfedit_plugin.edit.job.run_edit`'s (a :class:`~nerfedit_plugin.edit.job.Base`)."""
+    :func:`~nerfedit_plugin.edit.job.run_edit`'s (a :class:`~nerfedit_plugin.edit.job.Base`); so are ``on_stage`` and
+    ``on_progress`` (stages ``proxy NAME``, ``edit NAME``, ``own NAME`` per object)."""
     lift_config = LiftConfig() if lift_config is None else lift_config
     proxy_config = ProxyConfig() if proxy_config is None else proxy_config
-    clock = Stopwatch(on_stage)
+    clock = Stopwatch(on_stage, on_progress=on_progress)
     with clock.stage("load"):
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
         spec = load_objects_spec(edit, default_deformer, source_to_world)
@@ -372,9 +383,12 @@ def run_objects_edit(
             surface, others = rest.submesh(mask)[0], rest.submesh(~mask)[0]
             surfaces.append(surface)
             with clock.stage(f"proxy {obj.name}"):
-                proxy, cached = cached_proxy(surface, proxy_config, cache_dir, camera_distance)
+                proxy, cached = cached_proxy(surface, proxy_config, cache_dir, camera_distance, clock.progress)
             with clock.stage(f"edit {obj.name}"):
-                runs = [_run_instance(inst, surface, proxy, lift, lift_config, stage) for inst in obj.instances]
+                runs = [
+                    _run_instance(inst, surface, proxy, lift, lift_config, stage, clock.progress)
+                    for inst in obj.instances
+                ]
             with clock.stage(f"own {obj.name}"):
                 left = _own_regions(obj.name, runs, proxy if obj.removed else None, surface, others, objects)
             originals = [not obj.removed] + [False] * (len(runs) - 1)  # copies read their region, vacate nothing

@@ -47,7 +47,7 @@ from nerfedit_plugin.geometry.tets import (  # noqa: F401  (re-exported: these l
 )
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 from nerfedit_plugin.io.atomic import atomic_path
-from nerfedit_plugin.timing import Stopwatch
+from nerfedit_plugin.timing import Progress, Stopwatch, no_progress
 
 PROXY_FORMAT = 2
 """Version of the build algorithm and file layout; part of the cache key (bump to invalidate old caches)."""
@@ -352,10 +352,16 @@ def proxy_from_tets(vertices: np.ndarray, tets: np.ndarray, mesh: SurfaceMesh, w
     return TetProxy(vertices, tets, cage, embed_tets, embed_bary, {"reused": where, "format": PROXY_FORMAT})
 
 
-def build_proxy(mesh: SurfaceMesh, config: ProxyConfig | None = None, camera_distance: float | None = None) -> TetProxy:
+def build_proxy(
+    mesh: SurfaceMesh,
+    config: ProxyConfig | None = None,
+    camera_distance: float | None = None,
+    progress: Progress = no_progress,
+) -> TetProxy:
     """Build the tet proxy of ``mesh`` (see the module docstring); raises :class:`NerfEditError` on bad input
     or when ``config.max_attempts`` growing offsets all leave a surface vertex outside the tets or closer than
-    ``config.min_margin`` x offset to their boundary. ``config`` defaults to ``ProxyConfig()``.
+    ``config.min_margin`` x offset to their boundary. ``config`` defaults to ``ProxyConfig()``. ``progress`` is
+    told each step (cage, tetwild, clean, embed, margin; "attempt k/n: " before them on a retry).
 
     Every scale-sensitive step (wrap, decimation, pytetwild, embedding, margin) runs on the mesh mapped into its
     :func:`unit_frame`; the tets and the cage are mapped back (barycentrics are invariant under the similarity)."""
@@ -366,9 +372,13 @@ def build_proxy(mesh: SurfaceMesh, config: ProxyConfig | None = None, camera_dis
     centre, scale = unit_frame(mesh.vertices)
     unit = mesh.with_vertices((mesh.vertices - centre) / scale)
     times: dict[str, float] = {}
-    clock = Stopwatch(seconds=times, digits=None)  # stages repeat across attempts: their times add up
+    label = ""  # what leads each step's name told to progress: "attempt k/n: " on retries
+    # stages repeat across attempts: their times add up
+    clock = Stopwatch(lambda name: progress(0, None, label + name), seconds=times, digits=None)
     for attempt in range(1, config.max_attempts + 1):
+        label = f"attempt {attempt}/{config.max_attempts}: " if attempt > 1 else ""
         unit_offset = offset / scale
+        progress(0, None, f"{label}cage (alpha wrap, decimation)")
         cage = build_cage(unit, unit_offset, config, times)
         with clock.stage("tetwild"):
             raw_vertices, raw_tets = tetrahedralize(cage, config)
@@ -431,9 +441,14 @@ def proxy_cache_key(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: flo
 
 
 def cached_proxy(
-    mesh: SurfaceMesh, config: ProxyConfig, cache_dir: str | os.PathLike, camera_distance: float | None = None
+    mesh: SurfaceMesh,
+    config: ProxyConfig,
+    cache_dir: str | os.PathLike,
+    camera_distance: float | None = None,
+    progress: Progress = no_progress,
 ) -> tuple[TetProxy, bool]:
-    """``(proxy, hit)``: load ``<cache_dir>/<key>.npz`` if present and readable, else build and store it."""
+    """``(proxy, hit)``: load ``<cache_dir>/<key>.npz`` if present and readable, else build and store it
+    (``progress``: as :func:`build_proxy`'s)."""
     config.validate()
     path = Path(cache_dir) / f"{proxy_cache_key(mesh, config, camera_distance)}.npz"
     if path.is_file():
@@ -441,6 +456,6 @@ def cached_proxy(
             return TetProxy.load(path), True
         except NerfEditError as exc:  # unreadable cache entry: say so once, rebuild and overwrite it
             warnings.warn(f"{exc}; rebuilding the cache entry", stacklevel=2)
-    proxy = build_proxy(mesh, config, camera_distance)
+    proxy = build_proxy(mesh, config, camera_distance, progress)
     proxy.save(path)
     return proxy, False

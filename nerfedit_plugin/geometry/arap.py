@@ -13,6 +13,7 @@ choices: docs/method.md, "Surface editing: ARAP".
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -409,6 +410,7 @@ class ArapSolver:
         tolerance: float = 1e-6,
         method: str = "anderson",
         anderson: int = ANDERSON_DEPTH,
+        callback: Callable[[int, float], None] | None = None,
     ) -> ArapResult:
         """Minimise E with the fixed vertices at ``fixed_positions (H,3)`` (default: rest) and constraint targets
         ``constraint_targets (m,3)`` (default: ``C·rest``), starting from ``initial (N,3)`` (default: rest), whose
@@ -420,7 +422,10 @@ class ArapSolver:
         iterations, whose iterates are libigl's ``arap_solve`` iterates); ``"lbfgs"``, L-BFGS on E (Liu, Bouaziz &
         Kavan 2017; history :data:`LBFGS_DEPTH`, initial inverse Hessian ``γ A⁻¹``, Armijo backtracking, the plain
         local/global step when that fails). Both keep E non-increasing and cost one back-substitution per
-        iteration; L-BFGS needs far fewer iterations on large meshes (docs/benchmarks.md, issue 18)."""
+        iteration; L-BFGS needs far fewer iterations on large meshes (docs/benchmarks.md, issue 18).
+
+        ``callback(k, energies[k])``, if given, is called as each energy of :attr:`ArapResult.energies` is known
+        (k = 0 at the start, then once per iteration); it must not change the solve's arrays."""
         if method not in METHODS:
             raise NerfEditError(f"ARAP: unknown method {method!r} (expected one of {list(METHODS)})")
         x = self.rest.copy() if initial is None else np.array(initial, dtype=np.float64) - self.origin
@@ -442,18 +447,23 @@ class ArapSolver:
 
         rotations, energy = self._local(x, targets)
         energies = [energy]
+        if callback is not None:
+            callback(0, energy)
         floor = 1e-20 * max(self._rest_energy, np.finfo(float).tiny)
         if self._factor is not None and abs(energy) > floor:
             iterate = self._lbfgs if method == "lbfgs" else self._anderson
-            x, converged = iterate(x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, anderson)
+            x, converged = iterate(
+                x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, anderson, callback
+            )
         else:
             converged = True
         vertices = x + self.origin
         vertices[self.fixed] = fixed_positions  # exactly, without the round trip through centred coordinates
         return ArapResult(vertices, len(energies) - 1, energies, bool(converged))
 
-    # ---- minimisers: from centred x (fixed rows set) and its rotations, append to energies, return (x, converged)
-    def _anderson(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, depth):
+    # ---- minimisers: from centred x (fixed rows set) and its rotations, append to energies (calling callback, if
+    # any, with each), return (x, converged)
+    def _anderson(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, depth, callback):
         """Local/global iterations Anderson-accelerated (history ``depth``) under the energy guard."""
         energy, converged = energies[-1], False
         accelerator = _Anderson(depth, 3 * len(self.free))
@@ -469,10 +479,12 @@ class ArapSolver:
                 return x, True
             x, rotations, energy = trial, trial_rotations, trial_energy
             energies.append(energy)
+            if callback is not None:
+                callback(len(energies) - 1, energy)
             converged = _converged(energies, tolerance, floor)
         return x, converged
 
-    def _lbfgs(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, _depth):
+    def _lbfgs(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, _depth, callback):
         """L-BFGS on E over the free vertices. The half gradient ``h = A x − (K R(x) + b)`` (R(x): the local
         step's rotations, optimal, so the rotations' own variation drops out) and ``p = A⁻¹h`` give the plain
         local/global iterate ``x − p``; the L-BFGS step ``x − α H h`` is tried at α = 1, ½, ¼, ⅛ (Armijo), else
@@ -508,6 +520,8 @@ class ArapSolver:
             history.push(new_xf - xf, new_h - h, new_p - p)  # A⁻¹(h⁺ − h) = p⁺ − p: no back-substitution
             x, xf, h, p, energy = trial, new_xf, new_h, new_p, trial_energy
             energies.append(energy)
+            if callback is not None:
+                callback(len(energies) - 1, energy)
             if _converged(energies, tolerance, floor):
                 return x, True
         return x, False
