@@ -203,6 +203,17 @@ def _block_slots(indptr, indices, rows, columns):
     return out
 
 
+@njit(cache=True, inline="always")
+def _jacobian(x, tet, b, jac):
+    """``J = Σ_c x_{tet[c]} ⊗ b_c`` (3×3, into ``jac``): the tet's deformation gradient from its gradient map ``b``."""
+    for a in range(3):
+        for e in range(3):
+            total = 0.0
+            for c in range(4):
+                total += x[tet[c], a] * b[c, e]
+            jac[a, e] = total
+
+
 @njit(cache=True)
 def _newton_kernel(x, tets, gradient_map, scale, slots, floor, blocks, gradient):
     """The per-tet work of a Newton iteration, compiled: for each tet, ``J = Σ_c x_c ⊗ b_c``, its SVD
@@ -216,12 +227,7 @@ def _newton_kernel(x, tets, gradient_map, scale, slots, floor, blocks, gradient)
     half = np.sqrt(0.5)
     for k in range(tets.shape[0]):
         b = gradient_map[k]
-        for a in range(3):
-            for e in range(3):
-                total = 0.0
-                for c in range(4):
-                    total += x[tets[k, c], a] * b[c, e]
-                jac[a, e] = total
+        _jacobian(x, tets[k], b, jac)
         _svd3(jac, u, s, v)
         for c in range(4):  # W = b V: the corners' gradients in the right singular frame
             for j in range(3):
@@ -273,12 +279,7 @@ def _distortion(x, tets, gradient_map, volumes):
     total = 0.0
     for k in range(tets.shape[0]):
         b = gradient_map[k]
-        for a in range(3):
-            for e in range(3):
-                value = 0.0
-                for c in range(4):
-                    value += x[tets[k, c], a] * b[c, e]
-                jac[a, e] = value
+        _jacobian(x, tets[k], b, jac)
         c00 = jac[1, 1] * jac[2, 2] - jac[1, 2] * jac[2, 1]
         c01 = jac[1, 2] * jac[2, 0] - jac[1, 0] * jac[2, 2]
         c02 = jac[1, 0] * jac[2, 1] - jac[1, 1] * jac[2, 0]
