@@ -25,7 +25,7 @@ class DemoArgs:
 
 
 def demo(args: DemoArgs) -> None:
-    from nerfedit_plugin.cli.edit import StageProgress
+    from nerfedit_plugin.cli.progress import StageProgress
     from nerfedit_plugin.demo import run_demo
 
     with StageProgress(console) as stages:

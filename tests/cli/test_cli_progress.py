@@ -11,6 +11,7 @@ from rich.console import Console
 
 import nerfedit_plugin.cli.edit as cli_edit
 from nerfedit_plugin.cli.app import main
+from nerfedit_plugin.cli.progress import StageProgress
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 PROGRESS = re.compile("[⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏✓]|/200|factorising")  # spinners, done marks, counts, details
@@ -52,7 +53,7 @@ def test_the_display_follows_the_stopwatch(prefix):
     from nerfedit_plugin.timing import Stopwatch
 
     terminal = io.StringIO()
-    with cli_edit.StageProgress(Console(file=terminal, force_terminal=True, width=100), prefix) as display:
+    with StageProgress(Console(file=terminal, force_terminal=True, width=100), prefix) as display:
         clock = Stopwatch(display.on_stage, on_progress=display.on_progress)
         with clock.stage("bind"):
             clock.progress(0, None, "factorising")
