@@ -23,6 +23,7 @@ import tyro
 from deformers.cage.green import green_coordinates, green_face_terms
 from deformers.cage.mean_value import mean_value_coordinates
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
+from nerfedit_plugin.edit.proxy import ProxyConfig
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
@@ -70,11 +71,12 @@ class CageConfig(DeformerConfig):
         check_option(self, "weights_budget_mb", budget, bool(np.isfinite(budget) and budget >= 0), "a number >= 0")
 
 
-AUTO_CLUSTER_FACES = 200_000
-"""Meshes of this many triangles or more are alpha-wrapped through their vertex clustering (as the tet proxy's
-``wrap_cluster_faces``): the wrap's time grows with its input's triangles (14 s for the 3.6M of a 1.8M-vertex mesh)."""
-AUTO_CLUSTER_CELL = 0.25
-"""Cell of that clustering, × the wrap's offset (the clustered surface lies within a cell diagonal of the mesh)."""
+AUTO_CLUSTER_FACES = ProxyConfig.wrap_cluster_faces
+"""Meshes of this many triangles or more are alpha-wrapped through their vertex clustering: the tet proxy's rule
+(``ProxyConfig.wrap_cluster_faces``; the wrap's time grows with its input's triangles, 14 s for the 3.6M of a
+1.8M-vertex mesh)."""
+AUTO_CLUSTER_CELL = ProxyConfig.wrap_cell
+"""Cell of that clustering, × the wrap's offset (``ProxyConfig.wrap_cell``)."""
 
 
 def auto_cage(mesh: SurfaceMesh, alpha: float = 5.0, offset: float = 2.0, max_vertices: int = 400) -> SurfaceMesh:
