@@ -2,6 +2,8 @@
 fields the grid represents exactly, the occupancy band is conservative, the zero level set of the initial field is
 the sphere, training improves PSNR, and checkpoints round trip (and refuse other backends)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -137,7 +139,8 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
             )
         )
     )
-    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=data.scene_bbox)
+    config = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0, init_shell=0)
+    field = config.setup(scene_bbox=data.scene_bbox)
     field.init_from_hull(data.cameras, data.alpha > 0)
     vertices = field.grid.vertex_points().reshape(-1, 3)
     radius, truth = 0.5, vertices.norm(dim=1) - 0.5  # the generator scales the ball to a diameter of 1
@@ -145,6 +148,33 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
     assert (values[truth < -0.03] < 0).all() and (values[truth > 0.05] > 0).all()
     near = truth.abs() < 0.1
     assert (values[near] - truth[near]).abs().mean() < 0.02 * radius * 2
+    # the default start is the hull's shell: |d + t/2| − t/2 of the solid hull's distance d, hollow inside
+    shell = dataclasses.replace(config, init_shell=3.0).setup(scene_bbox=data.scene_bbox)
+    shell.init_from_hull(data.cameras, data.alpha > 0)
+    t = 3.0 * shell.cell
+    torch.testing.assert_close(sdf(shell, vertices), (values + t / 2).abs() - t / 2, atol=1e-5, rtol=0)
+    assert (sdf(shell, vertices)[truth < -0.03 - t] > 0).all()
+
+
+def test_enclosed_voids_are_filled_and_open_cavities_kept():
+    """``fill_voids`` flips the sign inside a closed hollow shell (one surface is extracted, the outer one) and keeps
+    a cavity that opens to the border (a shell pierced by a hole) as it is."""
+    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    vertices = field.grid.vertex_points().reshape(-1, 3)
+    r, outer, wall = vertices.norm(dim=1), 0.25, 0.06
+    hollow = (r - (outer - wall / 2)).abs() - wall / 2
+    pierced = torch.maximum(hollow, -(vertices[:, :2].norm(dim=1) - 0.08))  # a hole along z through both sides
+    for values in (hollow, pierced):
+        field.grid.table.data[:, 0] = values / field.cell
+        field.fill_voids()
+        after = sdf(field, vertices).detach()
+        if values is hollow:
+            assert (after[r < outer - wall] < 0).all()
+            torch.testing.assert_close(after.abs(), values.abs())  # only signs change
+            area = field.extract_mesh(resolution=64).to_trimesh().area
+            assert area == pytest.approx(4 * np.pi * outer**2, rel=0.03)  # the outer sphere alone
+        else:
+            torch.testing.assert_close(after, values)
 
 
 def test_opaque_images_start_from_the_box_surface(monkeypatch):
