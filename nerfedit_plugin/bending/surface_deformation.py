@@ -74,6 +74,7 @@ class SurfaceDeformation:
         self.method = method
         self.device, self.dtype = torch.device(device), dtype
         self._queries: dict[int, object] = {}  # frame -> Open3D RaycastingScene or cKDTree of S'
+        self._moved: dict[int, np.ndarray | None] = {}  # frame -> moved_bounds (the renderer asks once per ray batch)
 
     @property
     def n_frames(self) -> int:
@@ -109,10 +110,12 @@ class SurfaceDeformation:
         edit: the renderer samples as without it). The moved content lies in this box, the still surface where it
         was (the renderer's sampling box adds this box to the scene box)."""
         frame = self._check_frame(frame)
-        rest, deformed = self.rest_vertices, self.deformed_vertices[frame]
-        moved = np.linalg.norm(deformed - rest, axis=1) > MOVED_TOLERANCE * float(np.ptp(rest, axis=0).max())
-        corners = deformed[self.faces[moved[self.faces].any(1)]].reshape(-1, 3)
-        return np.stack([corners.min(0), corners.max(0)]) if len(corners) else None
+        if frame not in self._moved:
+            rest, deformed = self.rest_vertices, self.deformed_vertices[frame]
+            moved = np.linalg.norm(deformed - rest, axis=1) > MOVED_TOLERANCE * float(np.ptp(rest, axis=0).max())
+            corners = deformed[self.faces[moved[self.faces].any(1)]].reshape(-1, 3)
+            self._moved[frame] = np.stack([corners.min(0), corners.max(0)]) if len(corners) else None
+        return self._moved[frame]
 
     def bend(
         self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True

@@ -144,9 +144,7 @@ class Lift:
         ``max_iterations`` units per frame and round for the ARAP lifts, else 1; a lift that needs fewer rounds
         jumps to the end)."""
         self.rest_normals = face_normals(rest.vertices, rest.faces)
-        used = np.zeros(rest.n_vertices, dtype=bool)
-        used[rest.faces.ravel()] = True  # np.unique(rest.faces), without sorting the 3F corners
-        self.surface = np.flatnonzero(used)
+        self.surface = np.flatnonzero(rest.referenced())
         """The surface vertices (those of a face): the constraints and residuals of the lift (a stray vertex,
         which no deformer is bound to move with its neighbours, would pull the proxy apart)."""
         if method == "direct" and (deformer is None or not deformer.supports_points()):

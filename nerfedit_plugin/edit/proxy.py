@@ -233,9 +233,7 @@ def _wrap_input(mesh: SurfaceMesh, size: float) -> tuple[np.ndarray, np.ndarray]
 
     The alpha wrap ignores unreferenced vertices, yet the embedding must contain them; and the wrap of a bare point
     is a blob so small that tetwild's simplification deletes it, so the triangle is offset-sized."""
-    referenced = np.zeros(len(mesh.vertices), dtype=bool)
-    referenced[mesh.faces.ravel()] = True  # linear (np.setdiff1d sorts the 3F corners)
-    stray = np.flatnonzero(~referenced)
+    stray = np.flatnonzero(~mesh.referenced())
     if len(stray) == 0:
         return mesh.vertices, mesh.faces
     points = mesh.vertices[stray]

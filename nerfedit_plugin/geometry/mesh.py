@@ -122,6 +122,12 @@ class SurfaceMesh:
         """Length of the diagonal of the vertices' axis-aligned bounding box (float)."""
         return float(np.linalg.norm(self.vertices.max(0) - self.vertices.min(0)))
 
+    def referenced(self) -> np.ndarray:
+        """(V,) bool: the vertices some face uses (linear in the faces; ``np.unique`` would sort the 3F corners)."""
+        used = np.zeros(len(self.vertices), dtype=bool)
+        used[self.faces.ravel()] = True
+        return used
+
     def with_vertices(self, vertices: np.ndarray) -> SurfaceMesh:
         """vertices (V,3) float → a SurfaceMesh with the same connectivity and colours, new positions."""
         return SurfaceMesh(vertices, self.faces, self.vertex_colors)

@@ -75,3 +75,11 @@ def test_a_bad_index_in_a_fast_read_file_names_the_file(tmp_path):
     path.write_bytes(bytes(data))
     with pytest.raises(Exception, match="bad.ply: mesh faces: face"):
         SurfaceMesh.load(path)
+
+
+def test_referenced_marks_exactly_the_vertices_of_faces():
+    """``referenced()`` equals ``np.unique(faces)`` as a mask: a stray vertex (index 2 and the last) is unmarked."""
+    vertices = np.random.default_rng(0).normal(size=(7, 3))
+    faces = np.array([[0, 1, 3], [3, 4, 5], [1, 4, 0]])
+    mask = SurfaceMesh(vertices, faces).referenced()
+    assert mask.dtype == bool and np.array_equal(np.flatnonzero(mask), np.unique(faces))
