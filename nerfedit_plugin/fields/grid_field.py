@@ -142,6 +142,8 @@ def check_trainer_config(config: Any, train: TrainerConfig, prefix: str) -> None
         check_option(config, prefix + name, value, value >= 1, "a positive integer")
     every = train.eval_every_seconds
     check_option(config, prefix + "eval_every_seconds", every, 0 <= every < math.inf, ">= 0 (0: no evaluation)")
+    decay = train.lr_decay_steps
+    check_option(config, prefix + "lr_decay_steps", decay, decay >= 0, ">= 0 (0: decay over the budget)")
     margin = train.foreground_margin
     check_option(config, prefix + "foreground_margin", margin, margin >= -1, ">= -1 (-1: every pixel)")
     check_option(config, prefix + "clock", train.clock, train.clock in ("wall", "cpu"), "wall or cpu")

@@ -3,7 +3,8 @@
 Each step draws ``batch_rays`` pixels uniformly from all training images, renders them with the shared renderer
 (:func:`nerfedit_plugin.render.renderer.render_rays`, stratified samples) and minimises the mean squared colour error
 plus an optional backend regulariser. Every learning rate decays exponentially with training progress
-``p = max(step / max_steps, seconds / max_seconds)``: ``lr(p) = lr₀ · lr_final_factor^p``. Evaluation (PSNR over
+``p = max(step / max_steps, seconds / max_seconds)`` (or ``min(1, max(p, step / lr_decay_steps))``):
+``lr(p) = lr₀ · lr_final_factor^p``. Evaluation (PSNR over
 whole held-out images) runs every ``eval_every_seconds`` of training time and is excluded from the clock, so the
 log's ``(seconds, psnr)`` pairs are a PSNR-vs-training-time curve. The clock is wall time, or on a busy machine the
 CPU time of the training thread (``TrainerConfig.clock``), which does not grow with other processes' load.
@@ -43,7 +44,11 @@ class TrainerConfig:
     batch_rays: int = 4096
     """Rays (pixels) per optimisation step, drawn uniformly from all training images."""
     lr_final_factor: float = 0.1
-    """Learning rates decay exponentially to this fraction of their initial values at the end of the budget."""
+    """Learning rates decay exponentially to this fraction of their initial values at the end of the budget (or of
+    ``lr_decay_steps``)."""
+    lr_decay_steps: int = 0
+    """When > 0, the learning rates reach ``lr_final_factor`` after this many steps, or at the end of the budget if
+    that comes first, and stay there: a longer budget adds steps at the final rate instead of slowing the decay."""
     n_samples: int = 96
     """Samples per ray while training (the renderer's ``n_samples``)."""
     eval_every_seconds: float = 30.0
@@ -156,6 +161,8 @@ def train(
         while step < config.max_steps and seconds < config.max_seconds:
             start = clock()
             progress = max(step / config.max_steps, seconds / config.max_seconds)
+            if config.lr_decay_steps:
+                progress = min(1.0, max(progress, step / config.lr_decay_steps))
             for group, lr in zip(optimizer.param_groups, initial_lr):
                 group["lr"] = lr * config.lr_final_factor**progress
             batch = pool[torch.randint(0, len(pool), (config.batch_rays,), generator=generator).to(device)]

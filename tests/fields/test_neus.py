@@ -157,24 +157,31 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
 
 
 def test_enclosed_voids_are_filled_and_open_cavities_kept():
-    """``fill_voids`` flips the sign inside a closed hollow shell (one surface is extracted, the outer one) and keeps
-    a cavity that opens to the border (a shell pierced by a hole) as it is."""
-    field = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
+    """``fill_voids`` flips the sign inside a closed hollow shell (one surface is extracted, the outer one) and inside
+    a shell pierced by pinholes one grid vertex wide (``fill_gap=1``; kept with ``fill_gap=0``), and keeps a cavity
+    that opens to the border through a wide hole as it is."""
+    config = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0)
+    field = config.setup(scene_bbox=BOX)
     vertices = field.grid.vertex_points().reshape(-1, 3)
     r, outer, wall = vertices.norm(dim=1), 0.25, 0.06
     hollow = (r - (outer - wall / 2)).abs() - wall / 2
-    pierced = torch.maximum(hollow, -(vertices[:, :2].norm(dim=1) - 0.08))  # a hole along z through both sides
-    for values in (hollow, pierced):
+    axis = vertices[:, :2].norm(dim=1)  # holes along z through both sides: the vertex column on the axis, or wide
+    pinholed = torch.maximum(hollow, -(axis - 0.6 * float((BOX[1] - BOX[0]).min()) / 32))
+    pierced = torch.maximum(hollow, -(axis - 0.08))
+    for values, gap, filled in ((hollow, 1, True), (pinholed, 1, True), (pinholed, 0, False), (pierced, 1, False)):
+        field = dataclasses.replace(config, fill_gap=gap).setup(scene_bbox=BOX)
         field.grid.table.data[:, 0] = values / field.cell
+        before = field.grid.table[:, 0].clone()
         field.fill_voids()
         after = sdf(field, vertices).detach()
-        if values is hollow:
+        if filled:
             assert (after[r < outer - wall] < 0).all()
             torch.testing.assert_close(after.abs(), values.abs())  # only signs change
+            assert not ((after > 0) & (values < 0)).any()  # flipped: outside vertices only
             area = field.extract_mesh(resolution=64).to_trimesh().area
             assert area == pytest.approx(4 * np.pi * outer**2, rel=0.03)  # the outer sphere alone
         else:
-            torch.testing.assert_close(after, values)
+            assert torch.equal(field.grid.table[:, 0], before)  # bit for bit
 
 
 def test_opaque_images_start_from_the_box_surface(monkeypatch):

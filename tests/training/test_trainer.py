@@ -71,6 +71,34 @@ def test_training_fits_the_colour_and_honours_the_step_budget():
     torch.testing.assert_close(torch.sigmoid(field.logit), torch.tensor([0.2, 0.6, 0.9]), atol=0.01, rtol=0)
 
 
+@pytest.mark.parametrize("decay_steps", [0, 10])
+def test_learning_rate_decays_over_the_budget_or_the_decay_steps(monkeypatch, decay_steps):
+    """``lr = lr₀ · lr_final_factor^p`` with ``p`` the budget's progress, or with ``lr_decay_steps`` ``min(1,
+    max(p, step / lr_decay_steps))``: the final rate is reached at that step and held."""
+    import nerfedit_plugin.training.trainer as trainer
+
+    data = flat_dataset()
+    field = ConstantField(FieldConfig(), data.scene_bbox)
+    optimizers, rates = [], []
+    adam = trainer._adam
+    monkeypatch.setattr(trainer, "_adam", lambda *a: optimizers.append(adam(*a)) or optimizers[-1])
+    config = TrainerConfig(
+        max_steps=40, max_seconds=1e6, batch_rays=16, n_samples=4, eval_every_seconds=0, progress=False,
+        lr_final_factor=0.1, lr_decay_steps=decay_steps,
+    )  # fmt: skip
+    group = lambda: [{"params": [field.logit], "lr": 0.5}]  # noqa: E731
+    train(
+        field,
+        data,
+        config,
+        param_groups=group,
+        callback=lambda step: rates.append(optimizers[-1].param_groups[0]["lr"]),
+    )
+    progress = [s / 40 if not decay_steps else min(1.0, s / decay_steps) for s in range(40)]
+    assert rates == pytest.approx([0.5 * 0.1**p for p in progress], rel=1e-12)
+    assert (rates[-1] == pytest.approx(0.05)) == bool(decay_steps)
+
+
 def test_ray_pool_keeps_covered_pixels_and_drops_far_background():
     alpha = torch.zeros(2, 8, 8)
     alpha[0, 3, 3] = 0.5
