@@ -37,10 +37,16 @@ LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
 MAX_BISECTIONS = 2
 """Bisections of a tet per refinement round at most (a fit missing by 16× the target needs two)."""
-STUCK = 0.8
-"""A surface vertex whose residual a refinement round did not cut to this share is refined no more: what it misses
-is not the proxy's fit error (a folded surface edit, parts of the surface that cross and move apart). A round that
-cut no vertex's residual so is undone (proxy and lift as before it)."""
+AIM = 0.5
+"""Once some surface vertex misses ``residual_target``, refinement aims at this share of it: a vertex's fit also
+depends on the tets around its own, which its neighbours just within the target would otherwise leave coarse."""
+HELPED = 0.8
+"""A refinement round helped a surface vertex when it cut its residual to this share; a round that helped no vertex
+is undone (proxy and lift as before it)."""
+PATIENCE = 2
+"""A surface vertex that this many refinement rounds did not help is refined no more: what it misses is not the
+proxy's fit error (a folded surface edit, parts of the surface that cross and move apart). One round is not enough
+to tell: a vertex's fit can wait for its neighbours' tets, which the same round refines."""
 
 
 @dataclasses.dataclass
@@ -63,9 +69,9 @@ class LiftConfig:
     """Stop an inversion-free re-lift when an iteration lowers its energy by less than this fraction."""
     residual_target: float = 2e-3
     """tet-arap: where the lifted proxy misses a surface vertex by more than this × the rest bbox diagonal (the
-    piecewise-affine fit is too coarse there), the tets holding such vertices are bisected (once per factor 4 of
-    excess) and every frame is lifted again, warm-started from the previous lift; repeated while some vertex misses
-    and the last round cut its residual by a fifth at least (:data:`STUCK`)."""
+    piecewise-affine fit is too coarse there), the tets holding the vertices that miss :data:`AIM` × this are
+    bisected (once per factor 4 of excess) and every frame is lifted again, warm-started from the previous lift;
+    repeated while some vertex misses and the last round helped some vertex (:data:`HELPED`, :data:`PATIENCE`)."""
     refine_rounds: int = 3
     """tet-arap: refine-and-lift-again rounds at most (each bisects the marked tets up to :data:`MAX_BISECTIONS`
     times); 0 keeps the proxy as built."""
@@ -259,9 +265,11 @@ class Lift:
 
     def bisections_needed(self, residual: np.ndarray) -> np.ndarray:
         """residual (S,) → (S,) int64: per surface vertex, the bisections of its tet expected to bring it within
-        ``residual_target``: ⌈log₄(residual / target)⌉, 0 where it is within (a linear fit's error falls as h², by
-        about 4 per halving)."""
-        excess = np.maximum(residual / self.config.residual_target, 1.0)
+        :data:`AIM` × ``residual_target``: ⌈log₄(residual / aim)⌉, 0 where it is within (a linear fit's error falls
+        as h², by about 4 per halving); all 0 while every vertex is within the target."""
+        if residual.max() <= self.config.residual_target:
+            return np.zeros(len(residual), dtype=np.int64)
+        excess = np.maximum(residual / (AIM * self.config.residual_target), 1.0)
         return np.ceil(np.log(excess) / np.log(4.0)).astype(np.int64)
 
     def _lift(
@@ -293,9 +301,9 @@ class Lift:
         total = (1 + rounds) * per_pass
         lifted, reports = self._lift(frames, None, (0, total, ""))
         residual = self.residuals(lifted, frames) if self.method == "tet-arap" else None
-        stuck = np.zeros(len(self.surface), dtype=bool)
+        misses = np.zeros(len(self.surface), dtype=np.int64)  # rounds that refined a vertex without helping it
         for round_ in range(1, rounds + 1):
-            need = np.where(stuck, 0, np.minimum(self.bisections_needed(residual), MAX_BISECTIONS))
+            need = np.where(misses >= PATIENCE, 0, np.minimum(self.bisections_needed(residual), MAX_BISECTIONS))
             if not need.any():
                 break
             label = f"refinement {round_}/{rounds} · "
@@ -316,13 +324,13 @@ class Lift:
                 for old, new in zip(reports, again)
             ]
             residual, before = self.residuals(lifted, frames), residual
-            improved = (need > 0) & (residual <= STUCK * before)
+            improved = (need > 0) & (residual <= HELPED * before)
             if not improved.any():  # the round helped no vertex: keep the proxy and lift it had
                 proxy, self.refinements, lifted, reports = kept
                 self.progress((round_ + 1) * per_pass, total, f"{label}no gain: back to the proxy before")
                 self._bind(proxy)
                 break
-            stuck |= (need > 0) & ~improved  # not the fit's error there: no finer proxy helps these
+            misses += (need > 0) & ~improved  # PATIENCE misses: not the fit's error there, no finer proxy helps
         self.progress(total, total, f"{len(frames)} frame(s), {self.refinements} bisection(s)")
         return lifted, reports
 
