@@ -15,14 +15,19 @@ MAX_FOLDED_FACES = 0.01
 """Fraction of the surface faces a deformed frame may fold (normal turned by more than 90° from the rest face's):
 a fold the surface edit itself makes is carried into space by any lift."""
 
+MAX_CROSSING_FACES = 0
+"""Surface faces a deformed frame may push through others (counted where the lift misses its residual target): no
+injective map of space follows a surface through itself, so the lift misses it there; any count explains the miss."""
+
 MIN_HELD_OUT_PSNR = 20.0
 """Held-out PSNR (dB) below which a trained field is not usable yet: its renders are mostly background and its
 level set a fragment (the demo's fields reach 30+ dB; a field stopped after a few steps, 14 dB)."""
 
 
 def edit_warnings(report: dict) -> list[str]:
-    """report (``report.json`` of an edit: ``proxy.tets``, ``surface.faces``, ``per_frame[i].inverted_tets`` and
-    ``.flipped_surface_faces``) → one message per bound the worst frame exceeds."""
+    """report (``report.json`` of an edit: ``proxy.tets``, ``surface.faces``, ``per_frame[i].inverted_tets``,
+    ``.flipped_surface_faces``, ``.crossing_surface_faces`` and ``.residual_max``) → one message per bound the worst
+    frame exceeds."""
     frames = report["per_frame"]
     tets, faces = report["proxy"]["tets"], report["surface"]["faces"]
     found = []
@@ -39,6 +44,13 @@ def edit_warnings(report: dict) -> list[str]:
         count = frames[worst][key]
         if count > bound * total:
             found.append(f"frame {worst}: {count} of {total} {what} (more than {bound:.0%}; see docs/reliability.md)")
+    crossing = [frame.get("crossing_surface_faces") or 0 for frame in frames]
+    worst = max(range(len(frames)), key=crossing.__getitem__)
+    if crossing[worst] > MAX_CROSSING_FACES:
+        found.append(
+            f"frame {worst}: {crossing[worst]} of {faces} surface faces pass through others: no map of space follows "
+            f"the surface there (lift residual {frames[worst]['residual_max']:.1e} × bbox; see docs/reliability.md)"
+        )
     return found
 
 

@@ -7,6 +7,7 @@ import numpy as np
 
 from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.quality import (
+    MAX_CROSSING_FACES,
     MAX_FOLDED_FACES,
     MAX_INVERTED_TETS,
     MIN_HELD_OUT_PSNR,
@@ -15,8 +16,12 @@ from nerfedit_plugin.quality import (
 )
 
 
-def report(inverted, folded, tets=1000, faces=2000):
-    frames = [{"inverted_tets": i, "flipped_surface_faces": f} for i, f in zip(inverted, folded)]
+def report(inverted, folded, tets=1000, faces=2000, crossing=None):
+    crossing = crossing or [None] * len(inverted)
+    frames = [
+        {"inverted_tets": i, "flipped_surface_faces": f, "crossing_surface_faces": c, "residual_max": 4e-3}
+        for i, f, c in zip(inverted, folded, crossing)
+    ]
     return {"proxy": {"tets": tets}, "surface": {"faces": faces}, "per_frame": frames}
 
 
@@ -30,6 +35,13 @@ def test_edit_bounds_are_fractions_of_the_proxy_and_the_surface():
     assert len(edit_warnings(report([50], [50]))) == 2
 
 
+def test_any_crossing_face_warns():
+    """Crossing faces are counted only where the lift misses its target (None elsewhere): any count explains it."""
+    assert edit_warnings(report([0, 0], [0, 0], crossing=[None, MAX_CROSSING_FACES])) == []
+    (message,) = edit_warnings(report([0, 0, 0], [0, 0, 0], crossing=[None, 3, 1]))
+    assert message.startswith("frame 1: 3 of 2000 surface faces pass through others") and "4.0e-03 × bbox" in message
+
+
 def test_training_bound_is_the_last_held_out_psnr():
     assert training_warnings({}) == []  # nothing held out, nothing to judge
     assert training_warnings({"eval": [(1.0, 12.0), (9.0, MIN_HELD_OUT_PSNR)], "steps": 40}) == []
@@ -38,10 +50,11 @@ def test_training_bound_is_the_last_held_out_psnr():
 
 
 def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch, capsys):
-    """The top half of the capsule mirrored through z = 0 (given as the deformed mesh): its faces fold. The default
-    (inversion-free) lift keeps every tet positive, so the one warning is the folded surface; the soft-ARAP lift
-    alone (``--lift-options.no-injective``) also inverts tets: a second line. The edit is written either way, and
-    report.json holds the same messages."""
+    """The top half of the capsule mirrored through z = 0 (given as the deformed mesh): its faces fold, and they lie
+    on the bottom half's (the surface passes through itself). The default (inversion-free) lift keeps every tet
+    positive and so misses that surface: the warnings are the folded and the crossing faces. The soft-ARAP lift alone
+    (``--lift-options.no-injective``) follows it by inverting tets: the warnings are the inverted tets and the
+    folded faces. The edit is written either way, and report.json holds the same messages."""
     monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "cache"))
     capsule.save(tmp_path / "rest.ply")
     mirrored = capsule.vertices.copy()
@@ -50,15 +63,19 @@ def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch
     capsule.with_vertices(mirrored).save(tmp_path / "folded.ply")
     (tmp_path / "edit.json").write_text(json.dumps({"deformed": "folded.ply"}))
     argv = ["edit", "--mesh", str(tmp_path / "rest.ply"), "--deformer", "mesh", "--edit", str(tmp_path / "edit.json")]
-    for name, options, count in (("default", [], 1), ("arap", ["--lift-options.no-injective"], 2)):
+    for name, options, words in (
+        ("default", [], ("fold", "pass through")),
+        ("arap", ["--lift-options.no-injective"], ("inverted", "fold")),
+    ):
         assert main([*argv, "--out", str(tmp_path / name), *options]) == 0
         err = capsys.readouterr().err.splitlines()
         written = json.loads((tmp_path / name / "report.json").read_text())
-        assert written["warnings"] == edit_warnings(written) and len(written["warnings"]) == count
+        assert written["warnings"] == edit_warnings(written) and len(written["warnings"]) == 2
         assert err == [f"warning: {message}" for message in written["warnings"]]
-        assert "fold" in written["warnings"][0]
+        assert all(word in message for word, message in zip(words, written["warnings"]))
         frame = written["per_frame"][0]
         assert frame["flipped_surface_faces"] >= np.count_nonzero(top) // 2
+        assert (frame["crossing_surface_faces"] or 0) >= (frame["flipped_surface_faces"] if name == "default" else 0)
         assert (frame["inverted_tets"] > 0) == (name == "arap")
 
 

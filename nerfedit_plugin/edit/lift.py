@@ -100,6 +100,10 @@ class FrameReport:
     degenerate_tets: int
     flipped_surface_faces: int
     """Surface triangles whose normal turned by more than 90° (a folded edit folds the proxy too)."""
+    crossing_surface_faces: int | None
+    """tet-arap, frames whose lift misses ``residual_target`` somewhere: surface triangles that cross another one
+    and did not at rest (the edit pushes the surface through itself; no map of space follows it there). None where
+    not checked (other lifts, frames within the target)."""
     iterations: int
     seconds: float
 
@@ -159,6 +163,7 @@ class Lift:
         if method == "tet-edit" and (edit is None or not edit.handles):
             raise NerfEditError("--lift tet-edit: the edit spec must have handles to apply to the proxy")
         self.refinements = 0  # bisections of the proxy done (self.proxy is the refined one)
+        self._rest_crossings: np.ndarray | None = None  # (F,) bool, the rest surface's own crossing faces (lazy)
         if method in ("tet-arap", "tet-edit"):
             progress(0, None, f"factorising ({len(proxy.tets)} tets)")
         self._bind(proxy)
@@ -249,6 +254,7 @@ class Lift:
             inverted_tets=int(np.count_nonzero(volumes < -tiny)),
             degenerate_tets=int(np.count_nonzero(np.abs(volumes) <= tiny)),
             flipped_surface_faces=int(np.count_nonzero(flipped)),
+            crossing_surface_faces=None,
             iterations=iterations,
             seconds=seconds,
         )
@@ -331,8 +337,19 @@ class Lift:
                 self._bind(proxy)
                 break
             misses += (need > 0) & ~improved  # PATIENCE misses: not the fit's error there, no finer proxy helps
+        if self.method == "tet-arap":
+            reports = [self._check_crossings(report, surface) for report, surface in zip(reports, frames)]
         self.progress(total, total, f"{len(frames)} frame(s), {self.refinements} bisection(s)")
         return lifted, reports
+
+    def _check_crossings(self, report: FrameReport, surface: np.ndarray) -> FrameReport:
+        """The report of a frame (V,3) with ``crossing_surface_faces`` counted if its residual misses the target."""
+        if report.residual_max <= self.config.residual_target:
+            return report
+        if self._rest_crossings is None:
+            self._rest_crossings = self.rest.self_intersecting_faces()
+        crossing = self.rest.with_vertices(surface).self_intersecting_faces() & ~self._rest_crossings
+        return dataclasses.replace(report, crossing_surface_faces=int(np.count_nonzero(crossing)))
 
     def _units(self) -> int:
         """Progress units of one frame's lift: ``max_iterations`` for the ARAP lifts, else 1."""

@@ -144,6 +144,16 @@ class SurfaceMesh:
         )
         return connected_components(edges, directed=False)[1].astype(np.int64)
 
+    def self_intersecting_faces(self) -> np.ndarray:
+        """→ (F,) bool: the faces that cross another face of the mesh (pymeshlab's per-face self-intersection test;
+        faces sharing a vertex or an edge do not count as crossing)."""
+        import pymeshlab
+
+        meshes = pymeshlab.MeshSet()
+        meshes.add_mesh(pymeshlab.Mesh(self.vertices, self.faces))
+        meshes.compute_selection_by_self_intersections_per_face()
+        return meshes.current_mesh().face_selection_array().astype(bool)
+
     def submesh(self, keep: np.ndarray) -> tuple[SurfaceMesh, np.ndarray]:
         """keep (V,) bool → ``(mesh, index)``: the kept vertices (order and colours unchanged) with the faces whose
         three vertices are all kept, and ``index (V,) int64``, each vertex's index in that mesh or −1."""

@@ -83,3 +83,28 @@ def test_referenced_marks_exactly_the_vertices_of_faces():
     faces = np.array([[0, 1, 3], [3, 4, 5], [1, 4, 0]])
     mask = SurfaceMesh(vertices, faces).referenced()
     assert mask.dtype == bool and np.array_equal(np.flatnonzero(mask), np.unique(faces))
+
+
+def test_self_intersecting_faces_are_those_across_the_other_part():
+    """Two overlapping icospheres as one mesh: every face with corners on both sides of the other sphere crosses it
+    (a path from inside to outside meets the surface), and no face farther than its own size from the other sphere
+    does; apart, or alone, no face crosses (faces sharing corners do not count)."""
+    from nerfedit_plugin.geometry import raycast
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    assert not SurfaceMesh.from_trimesh(sphere).self_intersecting_faces().any()
+    for shift, expect_any in ((0.8, True), (2.5, False)):
+        other = sphere.copy()
+        other.apply_translation([shift, 0.1, 0.0])
+        both = SurfaceMesh.from_trimesh(trimesh.util.concatenate([sphere, other]))
+        crossing = both.self_intersecting_faces()
+        assert crossing.shape == (len(both.faces),) and crossing.any() == expect_any
+        n = len(sphere.faces)
+        for mine, theirs in ((slice(0, n), other), (slice(n, None), sphere)):
+            scene = raycast.raycasting_scene(np.asarray(theirs.vertices), np.asarray(theirs.faces))
+            inside = raycast.occupancy(scene, both.vertices[both.faces[mine]].reshape(-1, 3)).reshape(-1, 3)
+            straddling = inside.any(axis=1) & ~inside.all(axis=1)
+            assert not (straddling & ~crossing[mine]).any()
+            centres = both.vertices[both.faces[mine]].mean(axis=1)
+            distance = np.abs(np.linalg.norm(centres - theirs.centroid, axis=1) - 1.0)
+            assert not (crossing[mine] & (distance > 0.2)).any()  # edges of this sphere are ~0.1
