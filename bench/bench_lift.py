@@ -8,7 +8,8 @@ base, tip moved sideways by 17 % of its length): deform the surface with the def
 (``injective=False, refine_rounds=0``), the inversion-free lift on the proxy as built (``refine_rounds=0``) and the
 default (inversion-free, proxy refined where the fit misses the surface by more than ``residual_target``). Prints,
 per case and way, the worst frame's inverted tets, max residual (× bbox diagonal), flipped surface faces, surface faces
-pushed through others (counted in frames whose lift misses its residual target) and tets, and the time ratios against the soft ARAP lift (target for the inversion-free lift: ≤ 2 on the demo's edit). The best of
+pushed through others (counted in frames whose lift misses its residual target) and tets, and the time ratios
+against the soft ARAP lift (target for the inversion-free lift: ≤ 2 on the demo's edit). The best of
 ``--repeat`` runs is timed, by the wall clock and by the process's CPU clock (all threads; steadier on a shared
 machine): ``RATIO`` lines give the wall-clock ratio, then the CPU-clock one.
 
