@@ -149,6 +149,8 @@ class SurfaceMesh:
         faces sharing a vertex or an edge do not count as crossing)."""
         import pymeshlab
 
+        if len(self.faces) == 0:
+            return np.zeros(0, dtype=bool)
         meshes = pymeshlab.MeshSet()
         meshes.add_mesh(pymeshlab.Mesh(self.vertices, self.faces))
         meshes.compute_selection_by_self_intersections_per_face()

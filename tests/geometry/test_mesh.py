@@ -88,11 +88,12 @@ def test_referenced_marks_exactly_the_vertices_of_faces():
 def test_self_intersecting_faces_are_those_across_the_other_part():
     """Two overlapping icospheres as one mesh: every face with corners on both sides of the other sphere crosses it
     (a path from inside to outside meets the surface), and no face farther than its own size from the other sphere
-    does; apart, or alone, no face crosses (faces sharing corners do not count)."""
+    does; apart, or alone, no face crosses (faces sharing corners do not count); no faces, no crossings."""
     from nerfedit_plugin.geometry import raycast
 
     sphere = trimesh.creation.icosphere(subdivisions=3)
     assert not SurfaceMesh.from_trimesh(sphere).self_intersecting_faces().any()
+    assert SurfaceMesh(sphere.vertices, np.zeros((0, 3), dtype=np.int64)).self_intersecting_faces().shape == (0,)
     for shift, expect_any in ((0.8, True), (2.5, False)):
         other = sphere.copy()
         other.apply_translation([shift, 0.1, 0.0])
