@@ -36,7 +36,7 @@ from nerfedit_plugin.timing import Progress, Span, no_progress
 LiftMethod = Literal["tet-arap", "closest-point", "knn3", "tet-edit", "direct"]
 
 MAX_BISECTIONS = 2
-"""Bisections of a tet per refinement round at most (a fit missing by 16× the target needs two)."""
+"""Bisections of a tet per refinement round at most (a fit missing by 8× the target, 16× the aim, needs two)."""
 AIM = 0.5
 """Once some surface vertex misses ``residual_target``, refinement aims at this share of it: a vertex's fit also
 depends on the tets around its own, which its neighbours just within the target would otherwise leave coarse."""
@@ -272,14 +272,16 @@ class Lift:
         :meth:`misfit` over the frames."""
         return np.max([self.misfit(x, v) for x, v in zip(lifted, frames)], axis=0)
 
-    def bisections_needed(self, residual: np.ndarray) -> np.ndarray:
-        """residual (S,) → (S,) int64: per surface vertex, the bisections of its tet expected to bring it within
-        :data:`AIM` × ``residual_target``: ⌈log₄(residual / aim)⌉, 0 where it is within (a linear fit's error falls
-        as h², by about 4 per halving); all 0 while every vertex is within the target."""
-        if residual.max() <= self.config.residual_target:
+    def bisections_needed(self, residual: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+        """residual (S,), active (S,) bool (default all: the vertices not given up) → (S,) int64: per surface vertex,
+        the bisections of its tet expected to bring it within :data:`AIM` × ``residual_target``: ⌈log₄(residual /
+        aim)⌉, 0 where it is within (a linear fit's error falls as h², by about 4 per halving) and where not active;
+        all 0 while every active vertex is within the target (a vertex given up does not keep the others refining)."""
+        active = np.ones(len(residual), dtype=bool) if active is None else active
+        if not (residual[active] > self.config.residual_target).any():
             return np.zeros(len(residual), dtype=np.int64)
         excess = np.maximum(residual / (AIM * self.config.residual_target), 1.0)
-        return np.ceil(np.log(excess) / np.log(4.0)).astype(np.int64)
+        return np.where(active, np.ceil(np.log(excess) / np.log(4.0)), 0).astype(np.int64)
 
     def _lift(
         self, frames: np.ndarray, starts: np.ndarray | None, bar: tuple[int, int, str]
@@ -312,7 +314,7 @@ class Lift:
         residual = self.residuals(lifted, frames) if self.method == "tet-arap" else None
         misses = np.zeros(len(self.surface), dtype=np.int64)  # rounds that refined a vertex without helping it
         for round_ in range(1, rounds + 1):
-            need = np.where(misses >= PATIENCE, 0, np.minimum(self.bisections_needed(residual), MAX_BISECTIONS))
+            need = np.minimum(self.bisections_needed(residual, misses < PATIENCE), MAX_BISECTIONS)
             if not need.any():
                 break
             label = f"refinement {round_}/{rounds} · "
@@ -348,11 +350,14 @@ class Lift:
     def _check_crossings(self, report: FrameReport, deformed: np.ndarray, surface: np.ndarray) -> FrameReport:
         """The report of a frame (lifted proxy (N,3), surface (V,3)) with ``crossing_surface_faces`` counted if its
         residual misses the target: among the faces whose corners lie within :data:`CROSSING_RADIUS` × the bbox
-        diagonal of a vertex it misses, those crossing another face of that neighbourhood that did not at rest (the
-        test runs on the neighbourhood only: on a whole 900k-face mesh it takes 3.4 s)."""
+        diagonal of a vertex it misses, those crossing another face of that neighbourhood that did not cross one of it
+        at rest (per face, not per pair; the test runs on the neighbourhood only: on a whole 900k-face mesh it takes
+        3.4 s)."""
         if report.residual_max <= self.config.residual_target:
             return report
         missed = surface[self.surface[self.misfit(deformed, surface) > self.config.residual_target]]
+        if len(missed) == 0:  # a residual that is not a number: nothing to look at
+            return report
         radius = CROSSING_RADIUS * self.rest.bbox_diagonal
         candidates = np.flatnonzero(
             np.all((surface >= missed.min(0) - radius) & (surface <= missed.max(0) + radius), axis=1)

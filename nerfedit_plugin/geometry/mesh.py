@@ -145,8 +145,8 @@ class SurfaceMesh:
         return connected_components(edges, directed=False)[1].astype(np.int64)
 
     def self_intersecting_faces(self) -> np.ndarray:
-        """→ (F,) bool: the faces that cross another face of the mesh (pymeshlab's per-face self-intersection test;
-        faces sharing a vertex or an edge do not count as crossing)."""
+        """→ (F,) bool: the faces that cross another face of the mesh (pymeshlab's per-face self-intersection test:
+        faces sharing an edge never count, faces sharing only a vertex count when they pass through each other)."""
         import pymeshlab
 
         if len(self.faces) == 0:
