@@ -395,6 +395,22 @@ def test_refined_lift_fits_closer_and_stays_close_to_the_lift_as_built(capsule, 
     assert np.abs(refined[:, : len(capsule_proxy.vertices)] - built).max() < 2e-2 * capsule.bbox_diagonal
 
 
+def test_bisections_aim_at_half_the_target_while_an_active_vertex_misses_it(capsule, capsule_proxy):
+    """Per vertex ⌈log₄(residual / (AIM × target))⌉ bisections once an active vertex misses the target — also for
+    vertices within it but over the aim —, none while every active vertex is within (a vertex given up, however far
+    off, refines nothing and keeps nobody refining)."""
+    from nerfedit_plugin.edit.lift import AIM, LiftConfig
+
+    lift = Lift(capsule_proxy, capsule, config=LiftConfig(residual_target=1e-3))
+    aim = AIM * 1e-3
+    residual = np.array([0.5 * aim, 0.9 * aim, 1.5 * aim, 1.1e-3, 3.9 * aim, 4.1 * aim, 16.5 * aim])
+    np.testing.assert_array_equal(lift.bisections_needed(residual), [0, 0, 1, 1, 1, 2, 3])
+    np.testing.assert_array_equal(lift.bisections_needed(residual[:3]), [0, 0, 0])  # all within the target
+    active = np.array([True, True, True, False, True, True, True])  # vertex 3 (over the target) given up
+    np.testing.assert_array_equal(lift.bisections_needed(residual[:4], active[:4]), [0, 0, 0, 0])
+    np.testing.assert_array_equal(lift.bisections_needed(residual, active), [0, 0, 1, 0, 1, 2, 3])
+
+
 def test_a_round_that_helps_no_vertex_is_undone(capsule, capsule_proxy):
     """Two coincident surface vertices (vertex 0 split into a seam: one of its faces takes a copy) sent 0.1 apart: no
     map of space fits both, however fine the proxy. The refinement round cuts no residual by a fifth, so it is undone:
