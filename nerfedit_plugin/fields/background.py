@@ -15,6 +15,10 @@ length of its bin (the chord between the contracted bin edges) and ``σ`` a dens
 ``σ = softplus(g₀(contract(x)) + shift) / h`` with ``h`` the grid's final cell size, so ``g₀`` is an optical
 thickness per cell as in the ``nerf`` field; colour ``sigmoid(g₁..₃)``, view independent. The background is never
 bent by a deformation: edits live inside the foreground box.
+
+Layers (:mod:`nerfedit_plugin.fields.layers`): a ground plane and a far sphere, each adding one sample per ray at
+its crossing (``δ = 1``, so ``α = 1 − exp(−τ)`` with the layer's optical thickness ``τ``), for the floor and the
+surroundings the grid's cells are too coarse for. :meth:`BackgroundField.samples` says which samples are whose.
 """
 
 from __future__ import annotations
@@ -24,12 +28,16 @@ import math
 import torch
 import torch.nn.functional as F
 
+from nerfedit_plugin.data.datasets import world_up
 from nerfedit_plugin.fields.encoding import DenseGrid
+from nerfedit_plugin.fields.layers import FarSphereLayer, GroundLayer, fit_far_sphere, fit_ground
 
 DENSITY_INIT = 0.1
 """Initial density of the background model per contracted unit (a faint haze: the nerf field's ``density_init``)."""
 FAR_U = 1.0 - 1e-4
 """``u`` of the last sample edge beyond the box (``t = far + 10⁴ L``): stands for infinity."""
+GRID, GROUND, FAR = 0, 1, 2
+"""Whose a background sample is (:meth:`BackgroundField.samples`): the grid's, the ground layer's, the far sphere's."""
 
 
 def contract(points: torch.Tensor, box: torch.Tensor) -> torch.Tensor:
@@ -43,10 +51,20 @@ class BackgroundField(torch.nn.Module):
     """Density and colour of what lies outside ``box (2,3)``: a :class:`DenseGrid` of 4 channels over the contracted
     cube ``[-2,2]³`` (``resolution`` cells per axis now; ``final_resolution`` after coarse-to-fine refinement sets the
     density scale ``h``), ``n_before`` samples between the camera and the box and ``n_after`` beyond it (module
-    docstring). ``seed`` seeds the initial colour noise."""
+    docstring); with ``ground`` / ``far`` > 0, a ground plane / far sphere layer with a texture of that many cells
+    per side (off until :meth:`fit_layers` finds them). ``seed`` seeds the initial colour noise."""
 
     def __init__(
-        self, box: torch.Tensor, resolution: int, final_resolution: int, n_before: int, n_after: int, seed: int = 0
+        self,
+        box: torch.Tensor,
+        resolution: int,
+        final_resolution: int,
+        n_before: int,
+        n_after: int,
+        seed: int = 0,
+        *,
+        ground: int = 0,
+        far: int = 0,
     ) -> None:
         super().__init__()
         self.register_buffer("box", torch.as_tensor(box, dtype=torch.float32).reshape(2, 3).clone())
@@ -58,30 +76,71 @@ class BackgroundField(torch.nn.Module):
         init[:, 1:].normal_(0.0, 0.1, generator=torch.Generator().manual_seed(seed))
         cube = torch.tensor([[-2.0] * 3, [2.0] * 3], device=self.box.device)
         self.grid = DenseGrid(cube, resolution, 4, init.to(self.box.device))
+        self.ground = GroundLayer(self.box, ground) if ground > 0 else None
+        self.far = FarSphereLayer(self.box, far) if far > 0 else None
 
-    def query(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """World ``points (M,3)`` → ``(σ (M,) per contracted unit, rgb (M,3))``."""
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        """A checkpoint written before the layers existed (no ``ground.`` / ``far.`` keys) loads without them."""
+        for name in ("ground", "far"):
+            if getattr(self, name) is not None and not any(k.startswith(f"{prefix}{name}.") for k in state_dict):
+                setattr(self, name, None)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def fit_layers(self, dataset) -> dict:
+        """Place the layers from the training images (:func:`~nerfedit_plugin.fields.layers.fit_ground` with the
+        cameras' up direction, :func:`~nerfedit_plugin.data.datasets.world_up`, then
+        :func:`~nerfedit_plugin.fields.layers.fit_far_sphere`); returns what each sweep found."""
+        found = {}
+        if self.ground is not None:
+            found["ground"] = fit_ground(self.ground, dataset, world_up(dataset.cameras))
+        if self.far is not None:
+            found["far"] = fit_far_sphere(self.far, dataset, self.ground)
+        return found
+
+    def query(self, points: torch.Tensor, kind: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """World ``points (M,3)`` and whose samples they are (``kind (M,)``, :data:`GRID` where None) →
+        ``(σ (M,) per contracted unit, rgb (M,3))``; a layer's ``σ`` is its optical thickness (its ``δ`` is 1)."""
         values = self.grid(contract(points, self.box))
-        return F.softplus(values[:, 0] + self.shift) / self.cell, torch.sigmoid(values[:, 1:])
+        sigma, rgb = F.softplus(values[:, 0] + self.shift) / self.cell, torch.sigmoid(values[:, 1:])
+        for code, layer in ((GROUND, self.ground), (FAR, self.far)):
+            if layer is not None and kind is not None:
+                rows = torch.nonzero(kind == code).squeeze(1)
+                if len(rows):
+                    thickness, color = layer.query(points.index_select(0, rows))
+                    sigma, rgb = sigma.index_copy(0, rows, thickness), rgb.index_copy(0, rows, color)
+        return sigma, rgb
 
     def samples(
         self, origins: torch.Tensor, directions: torch.Tensor, near: torch.Tensor, far: torch.Tensor, stratified: bool
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Rays ``(R,3)`` (unit directions) and their segment ``[near, far] (R,)`` in the box (``far ≤ near``: a
         miss, split at the point closest to the box centre instead) → ascending sample distances
-        ``t (R, n_before + n_after)`` and the contracted length ``δ`` of each sample's bin (module docstring)."""
+        ``t (R, S)``, the contracted length ``δ`` of each sample's bin (module docstring) and whose sample it is
+        (``kind (R,S)`` int64, :data:`GRID`, :data:`GROUND` or :data:`FAR`): ``n_before + n_after`` grid samples,
+        then one per layer (``δ = 1`` where the ray crosses it, else ``δ = 0`` at the last grid sample)."""
         lo, hi = self.box
         closest = ((lo + hi) / 2 - origins).mul(directions).sum(-1).clamp_min(0.0)
         hit = far > near
         near, far = torch.where(hit, near, closest), torch.where(hit, far, closest)
         before = self._segment(origins, directions, near, near / (near + self.scale), self.n_before, -1.0, stratified)
         after = self._segment(origins, directions, far, torch.full_like(far, FAR_U), self.n_after, 1.0, stratified)
-        return torch.cat([before[0].flip(1), after[0]], 1), torch.cat([before[1].flip(1), after[1]], 1)
+        t, delta = torch.cat([before[0].flip(1), after[0]], 1), torch.cat([before[1].flip(1), after[1]], 1)
+        kind = torch.full_like(t, GRID, dtype=torch.int64)
+        layers = [(code, layer) for code, layer in ((GROUND, self.ground), (FAR, self.far)) if layer is not None]
+        if not layers:
+            return t, delta, kind
+        for code, layer in layers:
+            at, crosses = layer.crossing(origins, directions)
+            t = torch.cat([t, torch.where(crosses, at, t[:, -1])[:, None]], 1)
+            delta = torch.cat([delta, crosses.to(delta.dtype)[:, None]], 1)
+            kind = torch.cat([kind, torch.full_like(kind[:, :1], code)], 1)
+        order = torch.argsort(t, dim=1, stable=True)
+        return t.gather(1, order), delta.gather(1, order), kind.gather(1, order)
 
     def _segment(self, origins, directions, bound, reach, count: int, sign: float, stratified: bool):
         """``count`` samples on ``t = bound + sign · L u/(1 − u)``, ``u`` from 0 to ``reach (R,)`` in equal bins:
         their distances and contracted bin lengths ``(R, count)``, ordered away from the box."""
-        steps = torch.arange(count + 1, device=bound.device, dtype=bound.dtype) / count
+        steps = torch.arange(count + 1, device=bound.device, dtype=bound.dtype) / max(count, 1)
         edges = reach[:, None] * steps
         offsets = torch.rand(len(bound), count, device=bound.device) if stratified else 0.5
         centres = edges[:, :-1] + (edges[:, 1:] - edges[:, :-1]) * offsets

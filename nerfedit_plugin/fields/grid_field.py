@@ -65,8 +65,14 @@ class GridFieldConfig(FieldConfig):
     background_resolution: int = 128
     """Final cells per axis of the background grid over the contracted cube [-2,2]³ (refined at
     ``upsample_steps`` with the field's grid)."""
-    background_samples: tuple[int, int] = (32, 32)
-    """Background samples per ray between the camera and the scene box, and beyond the box."""
+    background_samples: tuple[int, int] = (0, 32)
+    """Background-grid samples per ray between the camera and the scene box (0: none; what lies there is the ground
+    layer's), and beyond the box."""
+    ground_layer: int = 128
+    """Cells per side of the ground layer's finest texture level (:mod:`nerfedit_plugin.fields.layers`: a plane found
+    by a sweep over the training images, for a floor that runs out of the frame); 0: no ground layer."""
+    far_layer: int = 64
+    """Cells per side of the far sphere layer's finest texture level (surroundings far away); 0: no far layer."""
     lr_background: float = 0.1
     """Adam learning rate of the background grid."""
     train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
@@ -87,7 +93,9 @@ class GridFieldConfig(FieldConfig):
             occupancy_resolution=16,
             occupancy_every=16,
             background_resolution=32,
-            background_samples=(16, 16),
+            background_samples=(0, 16),
+            ground_layer=64,
+            far_layer=32,
             train=TrainerConfig.tiny(seconds),
         )
         return cls(**{**preset, **overrides})
@@ -121,8 +129,11 @@ def check_grid_config(config: GridFieldConfig) -> None:
     ok = background >> levels >= 1 and (background >> levels) << levels == background
     check_option(config, "background_resolution", background, ok, f"a positive multiple of 2^{levels} (upsample_steps)")
     samples = config.background_samples
-    ok = len(samples) == 2 and min(samples) >= 1
-    check_option(config, "background_samples", samples, ok, "two positive integers (before the box, beyond it)")
+    ok = len(samples) == 2 and samples[0] >= 0 and samples[1] >= 1
+    check_option(config, "background_samples", samples, ok, "two integers: before the box >= 0, beyond it >= 1")
+    for name in ("ground_layer", "far_layer"):
+        size = getattr(config, name)
+        check_option(config, name, size, size == 0 or size >= 32, "0 (off) or at least 32 cells")
     check_option(config, "occupancy_dilation", config.occupancy_dilation, config.occupancy_dilation >= 0, ">= 0")
     check_option(config, "occupancy_warmup", config.occupancy_warmup, config.occupancy_warmup >= 0, ">= 0")
     check_option(config, "occupancy_every", config.occupancy_every, config.occupancy_every >= 1, ">= 1")
@@ -209,7 +220,14 @@ class GridField(Field):
         config = self.config
         final = config.background_resolution
         start = final >> len(config.upsample_steps)
-        self.background = BackgroundField(self.scene_bbox, start, final, *config.background_samples)
+        self.background = BackgroundField(
+            self.scene_bbox,
+            start,
+            final,
+            *config.background_samples,
+            ground=config.ground_layer,
+            far=config.far_layer,
+        )
 
     def background_model(self) -> BackgroundField | None:
         return self.background
@@ -224,6 +242,7 @@ class GridField(Field):
             return trainer
         if self.background is None:
             self._add_background()
+        self.background.fit_layers(dataset)
         return dataclasses.replace(trainer, foreground_margin=-1)
 
     def background_groups(self) -> list[dict]:

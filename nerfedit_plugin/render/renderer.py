@@ -200,30 +200,33 @@ def render_rays(
 
 def _with_background(model, box, origins, directions, t, delta, stratified: bool):
     """The field's samples ``t, δ (R,S)`` merged in ray order with the background model's (outside ``box``: from the
-    camera to the box and beyond it; ``δ`` in contracted units) → ``t, δ`` and the mask of background samples,
-    ``(R, S + S_b)``. The order also holds when an edit grows the sampling box beyond ``box``."""
+    camera to the box and beyond it; ``δ`` in contracted units) → ``t, δ`` and whose each sample is, ``(R, S + S_b)``:
+    −1 for the field's, else the model's ``kind``. The order also holds when an edit grows the sampling box beyond
+    ``box``."""
     near, far = ray_box(origins, directions, box)
-    t_outside, delta_outside = model.samples(origins, directions, near, far, stratified)
+    t_outside, delta_outside, kind = model.samples(origins, directions, near, far, stratified)
     order = torch.argsort(torch.cat([t, t_outside], 1), dim=1, stable=True)
-    mask = torch.cat([torch.zeros_like(t, dtype=torch.bool), torch.ones_like(t_outside, dtype=torch.bool)], 1)
+    whose = torch.cat([torch.full_like(t, -1, dtype=torch.int64), kind], 1)
     return (
         torch.cat([t, t_outside], 1).gather(1, order),
         torch.cat([delta, delta_outside], 1).gather(1, order),
-        mask.gather(1, order),
+        whose.gather(1, order),
     )
 
 
 def _samples(field: Field, origins, directions, t, delta, config: RenderConfig, deformation, frame, outside=None):
     """Opacity ``(A,S)`` and colour ``(A,S,3)`` of the samples at distances ``t (A,S)`` of rays ``(A,3)`` with bin
-    widths ``delta (A,S)`` (bent, packed, queried; dropped samples get α = 0). ``outside`` = (background model, mask
-    ``(A,S)`` of its samples): those are queried from the model at their unbent position, ``α = 1 − exp(−σ δ)``."""
+    widths ``delta (A,S)`` (bent, packed, queried; dropped samples get α = 0). ``outside`` = (background model, whose
+    ``(A,S)``: −1 for the field's samples, else the model's kind): the model's are queried from it at their unbent
+    position, ``α = 1 − exp(−σ δ)``."""
     n_rays, n = t.shape
     points = (origins[:, None] + t[..., None] * directions[:, None]).reshape(-1, 3)
     delta = delta.reshape(-1)
     if outside is not None:
-        model, mask = outside
-        far, near = torch.nonzero(mask.reshape(-1)).squeeze(1), torch.nonzero(~mask.reshape(-1)).squeeze(1)
-        sigma, far_rgb = model.query(points.index_select(0, far))
+        model, whose = outside
+        whose = whose.reshape(-1)
+        far, near = torch.nonzero(whose >= 0).squeeze(1), torch.nonzero(whose < 0).squeeze(1)
+        sigma, far_rgb = model.query(points.index_select(0, far), whose.index_select(0, far))
         far_alpha = 1.0 - torch.exp(-sigma * delta.index_select(0, far))
         points = points.index_select(0, near)
     bent = config.bend_view_directions and (field.kind == "sdf" or field.view_dependent)

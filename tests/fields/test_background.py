@@ -8,7 +8,7 @@ import torch
 
 from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.errors import OptionError
-from nerfedit_plugin.fields.background import BackgroundField, contract
+from nerfedit_plugin.fields.background import GRID, BackgroundField, contract
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
 from nerfedit_plugin.fields.neus import NeusConfig
 from nerfedit_plugin.render.renderer import RenderConfig, render_image, render_rays
@@ -49,15 +49,15 @@ def test_samples_lie_outside_the_box_in_ray_order_and_cover_the_ray():
     hit = far > near
     assert 50 < hit.sum() < 250  # rays through the box and rays that miss it
     for stratified in (False, True):
-        t, length = model.samples(origins, directions, near, far, stratified)
-        assert t.shape == length.shape == (300, 64)
+        t, length, kind = model.samples(origins, directions, near, far, stratified)
+        assert t.shape == length.shape == kind.shape == (300, 64) and (kind == GRID).all()
         assert (t.diff(dim=1) >= 0).all() and (length >= 0).all()
         points = origins[:, None] + t[..., None] * directions[:, None]
         assert (contract(points.reshape(-1, 3), BOX).abs().amax(-1) >= 1 - 1e-5).all()  # outside the box
         assert (t[hit, :24] <= near[hit, None] + 1e-5).all() and (t[hit, 24:] >= far[hit, None] - 1e-5).all()
     # down through the box centre from n₀ = 7.5 half sides: contracted lengths 1 − 1/n₀ before the box, 1 beyond
     origin, direction = torch.tensor([[0.0, 0.0, 3.3]]), torch.tensor([[0.0, 0.0, -1.0]])
-    t, length = model.samples(origin, direction, *ray_box(origin, direction, BOX), False)
+    t, length, _ = model.samples(origin, direction, *ray_box(origin, direction, BOX), False)
     assert length[0, :24].sum().item() == pytest.approx(1 - 1 / 7.5, abs=1e-5)
     assert length[0, 24:].sum().item() == pytest.approx(1.0, abs=1e-3)
 
@@ -67,7 +67,7 @@ def scene_field(fg_density: float, fg_rgb, bg_rgb, bg_where) -> NerfField:
     the background opaque with colour ``bg_rgb`` at contracted points where ``bg_where(points)`` holds, else
     empty."""
     config = NerfConfig(resolution=16, upsample_steps=(), occupancy_resolution=0, background="field")
-    config = dataclasses.replace(config, background_resolution=32)
+    config = dataclasses.replace(config, background_resolution=32, background_samples=(32, 32))
     field = config.setup(scene_bbox=BOX)
     logit = lambda c: torch.logit(torch.tensor(c))  # noqa: E731
     with torch.no_grad():

@@ -202,8 +202,9 @@ def test_opaque_images_start_from_the_box_surface(monkeypatch):
 
     started = []
     monkeypatch.setattr("nerfedit_plugin.fields.neus.train", lambda field, *a, **k: started.append(field) or {})
-    fresh = NeusConfig(resolution=16, upsample_steps=(), occupancy_resolution=0).setup(scene_bbox=BOX)
-    fresh.fit(Opaque())
+    config = NeusConfig(resolution=16, upsample_steps=(), occupancy_resolution=0, ground_layer=0, far_layer=0)
+    fresh = config.setup(scene_bbox=BOX)
+    fresh.fit(Opaque())  # no layers: nothing to fit them to
     assert started == [fresh] and fresh.config.background == "field"
     torch.testing.assert_close(sdf(fresh, vertices), truth, atol=1e-6, rtol=0)
 
