@@ -102,8 +102,8 @@ class BackgroundField(torch.nn.Module):
         ``(σ (M,) per contracted unit, rgb (M,3))``; a layer's ``σ`` is its optical thickness (its ``δ`` is 1)."""
         values = self.grid(contract(points, self.box))
         sigma, rgb = F.softplus(values[:, 0] + self.shift) / self.cell, torch.sigmoid(values[:, 1:])
-        for code, layer in ((GROUND, self.ground), (FAR, self.far)):
-            if layer is not None and kind is not None:
+        for code, layer in ((GROUND, self.ground), (FAR, self.far)) if kind is not None else ():
+            if layer is not None:
                 rows = torch.nonzero(kind == code).squeeze(1)
                 if len(rows):
                     thickness, color = layer.query(points.index_select(0, rows))
@@ -114,10 +114,11 @@ class BackgroundField(torch.nn.Module):
         self, origins: torch.Tensor, directions: torch.Tensor, near: torch.Tensor, far: torch.Tensor, stratified: bool
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Rays ``(R,3)`` (unit directions) and their segment ``[near, far] (R,)`` in the box (``far ≤ near``: a
-        miss, split at the point closest to the box centre instead) → ascending sample distances
-        ``t (R, S)``, the contracted length ``δ`` of each sample's bin (module docstring) and whose sample it is
-        (``kind (R,S)`` int64, :data:`GRID`, :data:`GROUND` or :data:`FAR`): ``n_before + n_after`` grid samples,
-        then one per layer (``δ = 1`` where the ray crosses it, else ``δ = 0`` at the last grid sample)."""
+        miss, split at the point closest to the box centre instead) → sample distances ``t (R, S)``, the
+        contracted length ``δ`` of each sample's bin (module docstring) and whose sample it is (``kind (R,S)`` int64,
+        :data:`GRID`, :data:`GROUND` or :data:`FAR`): ``n_before + n_after`` grid samples in ray order, then one per
+        layer (``δ = 1`` where the ray crosses it, else ``δ = 0`` at the last grid sample), unsorted: the renderer
+        sorts them with the field's."""
         lo, hi = self.box
         closest = ((lo + hi) / 2 - origins).mul(directions).sum(-1).clamp_min(0.0)
         hit = far > near
@@ -126,16 +127,13 @@ class BackgroundField(torch.nn.Module):
         after = self._segment(origins, directions, far, torch.full_like(far, FAR_U), self.n_after, 1.0, stratified)
         t, delta = torch.cat([before[0].flip(1), after[0]], 1), torch.cat([before[1].flip(1), after[1]], 1)
         kind = torch.full_like(t, GRID, dtype=torch.int64)
-        layers = [(code, layer) for code, layer in ((GROUND, self.ground), (FAR, self.far)) if layer is not None]
-        if not layers:
-            return t, delta, kind
-        for code, layer in layers:
-            at, crosses = layer.crossing(origins, directions)
-            t = torch.cat([t, torch.where(crosses, at, t[:, -1])[:, None]], 1)
-            delta = torch.cat([delta, crosses.to(delta.dtype)[:, None]], 1)
-            kind = torch.cat([kind, torch.full_like(kind[:, :1], code)], 1)
-        order = torch.argsort(t, dim=1, stable=True)
-        return t.gather(1, order), delta.gather(1, order), kind.gather(1, order)
+        for code, layer in ((GROUND, self.ground), (FAR, self.far)):
+            if layer is not None:
+                at, crosses = layer.crossing(origins, directions)
+                t = torch.cat([t, torch.where(crosses, at, t[:, -1])[:, None]], 1)
+                delta = torch.cat([delta, crosses.to(delta.dtype)[:, None]], 1)
+                kind = torch.cat([kind, torch.full_like(kind[:, :1], code)], 1)
+        return t, delta, kind
 
     def _segment(self, origins, directions, bound, reach, count: int, sign: float, stratified: bool):
         """``count`` samples on ``t = bound + sign · L u/(1 − u)``, ``u`` from 0 to ``reach (R,)`` in equal bins:

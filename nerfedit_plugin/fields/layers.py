@@ -83,6 +83,12 @@ def octahedral(directions: torch.Tensor) -> torch.Tensor:
     return torch.where(a[:, 2:3] >= 0, a[:, :2], folded)
 
 
+def plane_axes(up: torch.Tensor) -> torch.Tensor:
+    """Unit ``up (3,)`` → ``(2,3)``: two orthonormal directions spanning the plane normal to it."""
+    first = F.normalize(torch.linalg.cross(up, torch.eye(3, device=up.device)[int(up.abs().argmin())]), dim=0)
+    return torch.stack([first, torch.linalg.cross(up, first)])
+
+
 class GroundLayer(torch.nn.Module):
     """The plane ``up · x = height`` outside ``box (2,3)`` (module docstring); off until :func:`fit_ground` finds
     it (``active``)."""
@@ -108,10 +114,7 @@ class GroundLayer(torch.nn.Module):
         """Points on the plane ``(M,3)`` → ``(optical thickness (M,), rgb (M,3))``."""
         centre = (self.box[0] + self.box[1]) / 2
         half = float((self.box[1] - self.box[0]).mean()) / 2
-        e1 = torch.linalg.cross(self.up, torch.eye(3, device=points.device)[int(self.up.abs().argmin())])
-        e1 = e1 / e1.norm()
-        axes = torch.stack([e1, torch.linalg.cross(self.up, e1)])
-        values = self.texture(contract2((points - centre) @ axes.T / (GROUND_EXTENT * half)))
+        values = self.texture(contract2((points - centre) @ plane_axes(self.up).T / (GROUND_EXTENT * half)))
         return F.softplus(values[:, 0]), torch.sigmoid(values[:, 1:])
 
 
@@ -201,9 +204,7 @@ def fit_ground(layer: GroundLayer, dataset, up: tuple[float, float, float] | Non
         cells = torch.floor((point[keep] - centre) @ axes.T * (24.0 / half)).long() + 200  # within 6 · 24 of 0
         return _spread(cells[:, 0] * 400 + cells[:, 1], views[keep], colours[keep])
 
-    helper = torch.eye(3)[int(axis.abs().argmin())]
-    first = F.normalize(torch.linalg.cross(axis, helper), dim=0)
-    axes = torch.stack([first, torch.linalg.cross(axis, first)])
+    axes = plane_axes(axis)
     level = float(centre @ axis)
     height, variance, median = _sweep(torch.linspace(level - 3 * half, level + half, SWEEP_CANDIDATES), score)
     active = variance < DISTINCT * median
@@ -229,6 +230,7 @@ def fit_far_sphere(layer: FarSphereLayer, dataset, ground: GroundLayer | None = 
     offset = origins - centre
     reach = float(offset.norm(dim=-1).max())
     b = (offset * directions).sum(-1)
+    bins = max(16, round(1.1 * float(dataset.cameras.fx.median())))  # bins two pixels wide (1 uv unit ≈ 1.1 rad)
 
     def score(radius: float) -> float:
         t = -b + torch.sqrt((b * b - (offset * offset).sum(-1) + radius**2).clamp_min(0.0))
@@ -236,8 +238,6 @@ def fit_far_sphere(layer: FarSphereLayer, dataset, ground: GroundLayer | None = 
         point = offset[sky] + t[sky, None] * directions[sky]
         cells = torch.floor((octahedral(F.normalize(point, dim=-1)) + 1.0) * bins / 2).long()
         return _spread(cells[:, 0] * (bins + 1) + cells[:, 1], views[sky], colours[sky])
-
-    bins = max(16, round(1.1 * float(dataset.cameras.fx.median())))  # bins two pixels wide (1 uv unit ≈ 1.1 rad)
 
     candidates = torch.exp(torch.linspace(math.log(1.5 * reach), math.log(40 * reach), 60))
     radius, variance, median = _sweep(candidates, score)
