@@ -30,7 +30,7 @@ import torch.nn.functional as F
 
 from nerfedit_plugin.data.datasets import world_up
 from nerfedit_plugin.fields.encoding import DenseGrid
-from nerfedit_plugin.fields.layers import FarSphereLayer, GroundLayer, fit_far_sphere, fit_ground
+from nerfedit_plugin.fields.layers import FarSphereLayer, GroundLayer, fit_far_sphere, fit_ground, free_depths
 
 DENSITY_INIT = 0.1
 """Initial density of the background model per contracted unit (a faint haze: the nerf field's ``density_init``)."""
@@ -96,6 +96,11 @@ class BackgroundField(torch.nn.Module):
         if self.far is not None:
             found["far"] = fit_far_sphere(self.far, dataset, self.ground)
         return found
+
+    def free_depths(self, dataset) -> torch.Tensor | None:
+        """How far each training pixel's ray is empty, up to the layer it sees (:func:`~nerfedit_plugin.fields.layers.
+        free_depths`; None with no layer active)."""
+        return free_depths(self.ground, self.far, dataset)
 
     def query(self, points: torch.Tensor, kind: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """World ``points (M,3)`` and whose samples they are (``kind (M,)``, :data:`GRID` where None) →

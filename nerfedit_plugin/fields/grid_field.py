@@ -20,6 +20,7 @@ from nerfedit_plugin.errors import OptionError, check_option
 from nerfedit_plugin.fields.background import BackgroundField
 from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.encoding import spherical_harmonics
+from nerfedit_plugin.fields.occupancy import silhouette_depths
 from nerfedit_plugin.training.trainer import TrainerConfig
 
 
@@ -198,12 +199,6 @@ def grid_schedule(field: Any) -> Callable[[int], bool]:
     return callback
 
 
-def silhouettes(dataset: Any) -> torch.Tensor | None:
-    """Coverage ``(C,H,W)`` bool (alpha > 0) of a dataset's images when they have a transparent background, for
-    carving and the visual hull; None for opaque images (no alpha channel, or alpha ≡ 1: no silhouettes)."""
-    return None if dataset.opaque else dataset.alpha > 0
-
-
 class GridField(Field):
     """What the dense-grid fields share beyond their config: view dependence from the colour decoder, the training
     samples per ray as the render default, the occupancy-grid mask, the background model (``self.background``, a
@@ -244,6 +239,15 @@ class GridField(Field):
             self._add_background()
         self.background.fit_layers(dataset)
         return dataclasses.replace(trainer, foreground_margin=-1)
+
+    def free_depths(self, dataset: Any) -> torch.Tensor | None:
+        """How far each training pixel's ray is known to be empty, ``(C,H,W)`` camera-space depths for
+        :meth:`OccupancyGrid.carve`: off the silhouettes of transparent images the whole ray (``inf``, else 0); in
+        opaque images up to the background layer a pixel sees (:meth:`BackgroundField.free_depths`, after
+        :meth:`prepare_background`); None when nothing is known."""
+        if not dataset.opaque:
+            return silhouette_depths(dataset.alpha > 0)
+        return None if self.background is None else self.background.free_depths(dataset)
 
     def background_groups(self) -> list[dict]:
         """The optimiser group of the background grid (none without a background model)."""

@@ -15,6 +15,10 @@ Where the layers are is fitted before training (:func:`fit_ground`, :func:`fit_f
 plane-sweep stereo does: for each candidate height (radius), the training pixels are traced to the candidate surface
 and binned on it, and the candidate whose bins agree best in colour wins. A sweep whose best candidate does not stand
 out (no floor in the images, a world without an up direction) leaves its layer off.
+
+Once placed, the layers also say where the foreground box is empty (:func:`free_depths`, a photometric visual hull):
+a pixel whose colour the other views agree on at the point where its ray meets the plane or the sphere (inside the
+box too) sees that point, so its ray is empty up to it.
 """
 
 from __future__ import annotations
@@ -37,6 +41,11 @@ SWEEP_CANDIDATES = 81
 DISTINCT = 0.5
 """A sweep's best colour variance must be below this share of the median over the candidates for its layer to be
 used."""
+AGREE = 0.08
+""":func:`free_depths`: a pixel sees a layer when no colour channel differs by more than this from the median of the
+other views at its crossing ..."""
+AGREE_VIEWS = 3
+"""... and at least this many other views see the crossing."""
 
 
 class Texture(torch.nn.Module):
@@ -245,3 +254,52 @@ def fit_far_sphere(layer: FarSphereLayer, dataset, ground: GroundLayer | None = 
     layer.radius.fill_(radius)
     layer.active.fill_(active)
     return {"active": active, "radius": radius, "variance": variance, "median": median}
+
+
+@torch.no_grad()
+def free_depths(ground: GroundLayer | None, far: FarSphereLayer | None, dataset, chunk: int = 65536):
+    """How far each training pixel's ray is empty ``(C,H,W)`` (camera-space depth; module docstring): up to where it
+    first meets the active ``ground`` plane (going down, inside the foreground box too) or the active ``far`` sphere,
+    when the pixel's colour is within :data:`AGREE` of the median colour of the other views there (bilinear, at least
+    :data:`AGREE_VIEWS` views whose frame holds the point, occlusion not tested), else 0. None when no layer is
+    active. A pixel that sees an object in front of the layer disagrees with the views that see the layer there;
+    where most views see something else, the median is not the pixel's layer colour either, so the test errs towards
+    0 (not known empty)."""
+    active = [layer for layer in (ground, far) if layer is not None and bool(layer.active)]
+    if not active:
+        return None
+    cameras, images = dataset.cameras.to("cpu"), dataset.images.cpu()
+    count, height, width = len(cameras), cameras.height, cameras.width
+    origins, directions = (r.reshape(-1, 3) for r in generate_rays(cameras))
+    t = torch.full((len(origins),), math.inf)
+    if ground is not None and bool(ground.active):
+        up = ground.up.cpu()
+        down = directions @ up
+        at = (float(ground.height) - origins @ up) / torch.where(down < -1e-6, down, torch.full_like(down, -1e-6))
+        t = torch.where((down < -1e-6) & (at > 0), at, t)
+    if far is not None and bool(far.active):
+        device = far.centre.device
+        t = torch.minimum(t, far.crossing(origins.to(device), directions.to(device))[0].cpu())
+    view = torch.arange(len(origins)) // (height * width)
+    forward = -cameras.c2w[:, :3, 2]
+    depth = t * (directions * forward[view]).sum(-1)
+    world_to_camera = torch.linalg.inv(cameras.c2w)
+    planes = images.permute(0, 3, 1, 2)
+    seen = torch.zeros(len(origins), dtype=torch.bool)
+    for start in range(0, len(origins), chunk):
+        rows = slice(start, start + chunk)
+        points = origins[rows] + t[rows, None] * directions[rows]
+        colours = torch.full((len(points), count, 3), math.nan)
+        for i in range(count):
+            local = points @ world_to_camera[i, :3, :3].T + world_to_camera[i, :3, 3]  # OpenGL: looking down −z
+            x = cameras.fx[i] * local[:, 0] / -local[:, 2] + cameras.cx[i]
+            y = -cameras.fy[i] * local[:, 1] / -local[:, 2] + cameras.cy[i]
+            inside = (local[:, 2] < 0) & (x >= 0) & (x < width) & (y >= 0) & (y < height) & (view[rows] != i)
+            uv = torch.stack([x * (2 / width) - 1, y * (2 / height) - 1], -1).nan_to_num(0.0)
+            sampled = F.grid_sample(planes[i : i + 1], uv[None, None], align_corners=False)[0, :, 0].T
+            colours[:, i] = torch.where(inside[:, None], sampled, math.nan)
+        views = (~colours[..., 0].isnan()).sum(1)
+        median = colours.nanmedian(dim=1).values
+        agree = (images.reshape(-1, 3)[rows] - median).abs().amax(-1) <= AGREE
+        seen[rows] = agree & (views >= AGREE_VIEWS) & t[rows].isfinite()
+    return torch.where(seen, depth, 0.0).reshape(count, height, width)

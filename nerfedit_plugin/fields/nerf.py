@@ -24,7 +24,6 @@ from nerfedit_plugin.fields.grid_field import (
     GridField,
     GridFieldConfig,
     grid_schedule,
-    silhouettes,
     start_resolution,
 )
 from nerfedit_plugin.fields.level_set import extract_level_set
@@ -126,9 +125,8 @@ class NerfField(GridField):
                 found.append({"params": list(self.color.parameters()), "lr": config.lr_mlp})
             return found + self.background_groups()
 
-        coverage = silhouettes(dataset)
-        if self.occupancy is not None and config.carve and coverage is not None:
-            self.occupancy.carve(dataset.cameras, coverage.to(self.scene_bbox.device))
+        if self.occupancy is not None and config.carve and not dataset.opaque:
+            self.occupancy.carve(dataset.cameras, self.free_depths(dataset).to(self.scene_bbox.device))
         log = train(
             self,
             dataset,

@@ -29,7 +29,6 @@ from nerfedit_plugin.fields.grid_field import (
     GridField,
     GridFieldConfig,
     grid_schedule,
-    silhouettes,
     start_resolution,
 )
 from nerfedit_plugin.fields.level_set import extract_level_set
@@ -51,12 +50,13 @@ class NeusConfig(GridFieldConfig):
     init_hull: bool = True
     """When the training images have a transparent background (alpha < 1 somewhere), :meth:`NeusField.fit` first
     replaces the sphere by the signed distance to the visual hull of the covered pixels (at the starting grid
-    resolution), so training starts near the surface. Opaque images (a scene) have no silhouettes: their hull is the
-    whole box, so the field starts from the box's own surface (shrunk by two cells) and training carves it —
-    on the generated bunny + cow scene the objects then form (test pixels on them 17.7 dB vs 14.5 dB from the sphere,
-    all pixels 21.4 vs 21.2 dB after 300 CPU-s; docs/benchmarks.md, "Scenes: background model")."""
+    resolution), so training starts near the surface. Opaque images (a scene) have no silhouettes: the field starts
+    from the box's own surface (shrunk by two cells), carved by the photometric hull when a background layer is found
+    (the pixels that see the floor or the far sphere through the box, :meth:`GridField.free_depths`) — on the
+    generated bunny + cow scene after 300 CPU-s, test pixels on the objects 25.9 dB vs 18.5 dB from the box alone,
+    all pixels 31.6 vs 25.6 dB (docs/benchmarks.md, "Scenes: background model")."""
     init_shell: float = 4.0
-    """With ``init_hull`` on images with silhouettes: start from the hull's shell of this thickness in final cells
+    """With ``init_hull``: start from the hull's shell of this thickness in final cells
     (``f = |d + t/2| − t/2``, ``d`` the hull's signed distance), hollow inside; 0: the solid hull. The hull closes a
     cavity no silhouette sees into (a cup, a bowl) with a lid, which a solid start has to carve away cell by cell,
     while the colour loss opens a thin lid onto the hollow. Where the object lies deeper than ``t`` inside its hull
@@ -165,19 +165,20 @@ class NeusField(GridField):
         return torch.cat(points)
 
     @torch.no_grad()
-    def init_from_hull(self, cameras: Any, coverage: torch.Tensor) -> None:
-        """Set ``f`` at the grid vertices to the signed distance (Euclidean distance transform, scipy) to the visual
-        hull: the vertices that every camera sees on a covered pixel (``coverage (C,H,W)`` bool) — the centres of
-        :class:`OccupancyGrid` cells centred on the vertices, carved with no margin and without keeping what a camera
-        does not see (a box corner out of every side view's frame would otherwise stay in the hull). Kept as is when
-        the hull is empty or fills the box."""
+    def init_from_hull(self, cameras: Any, free: torch.Tensor, margin: int = 0, keep_unseen: bool = False) -> None:
+        """Set ``f`` at the grid vertices to the signed distance (Euclidean distance transform, scipy) to the hull that
+        the pixels' free depths ``free (C,H,W)`` carve (:meth:`OccupancyGrid.carve` with ``margin`` pixels, of cells
+        centred on the vertices): the visual hull of silhouettes (``silhouette_depths``; carved without keeping what
+        a camera does not see, as a box corner out of every side view's frame would otherwise stay), or the
+        photometric hull of a scene (:meth:`GridField.free_depths`; ``keep_unseen``: the floor runs out of the frames).
+        Kept as is when the hull is empty or fills the box."""
         from scipy.ndimage import distance_transform_edt
 
         lo, hi = self.scene_bbox
         n = self.grid.resolution
         half = (hi - lo) / (2 * n)
         hull = OccupancyGrid(torch.stack([lo - half, hi + half]), n + 1)
-        hull.carve(cameras, coverage, margin=0, keep_unseen=False)
+        hull.carve(cameras, free, margin, keep_unseen)
         inside = hull.mask.cpu().numpy()
         if inside.all() or not inside.any():
             return
@@ -238,7 +239,8 @@ class NeusField(GridField):
         occupancy band carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and
         the grid refined at ``upsample_steps``. Opaque images (the background model on, see
         :meth:`prepare_background`) have no silhouettes: with ``init_hull`` the field starts from the box
-        (:meth:`init_from_box`) and nothing is carved from the occupancy grid."""
+        (:meth:`init_from_box`) carved by their photometric hull when there is one, and nothing is carved from the
+        occupancy grid (measured on the scene: no gain for ``nerf``)."""
         trainer = self.prepare_background(dataset, trainer or self.config.train)
         config = self.config
         generator = torch.Generator().manual_seed(trainer.seed)
@@ -253,15 +255,14 @@ class NeusField(GridField):
                 {"params": list(self.color.parameters()), "lr": config.lr_mlp},
             ] + self.background_groups()
 
-        coverage = silhouettes(dataset)
-        if coverage is None and config.init_hull:
+        free, opaque = self.free_depths(dataset), dataset.opaque
+        free = None if free is None else free.to(self.scene_bbox.device)
+        if config.init_hull and opaque:
             self.init_from_box()
-        if coverage is not None:
-            coverage = coverage.to(self.scene_bbox.device)
-            if config.init_hull:
-                self.init_from_hull(dataset.cameras, coverage)
-            if self.occupancy is not None and config.carve:
-                self.occupancy.carve(dataset.cameras, coverage)
+        if config.init_hull and free is not None:
+            self.init_from_hull(dataset.cameras, free, keep_unseen=opaque)
+        if self.occupancy is not None and config.carve and not opaque:
+            self.occupancy.carve(dataset.cameras, free)
         log = train(
             self,
             dataset,

@@ -22,6 +22,12 @@ def cell_maxima(values: torch.Tensor, cells: int) -> torch.Tensor:
     return F.max_pool3d(values[None, None], kernel_size=k + 1, stride=k)[0, 0]
 
 
+def silhouette_depths(coverage: torch.Tensor) -> torch.Tensor:
+    """Free depths (:meth:`OccupancyGrid.carve`) of silhouettes ``coverage (C,H,W)`` bool: a covered pixel's ray may
+    meet the object anywhere (0), an uncovered one's is empty all along (``inf``)."""
+    return torch.where(coverage, 0.0, torch.inf)
+
+
 class OccupancyGrid(torch.nn.Module):
     """``R³`` equal cells (``R`` ≤ 256) over ``bbox (2,3)``; starts all occupied. Points outside the box are
     unoccupied."""
@@ -67,18 +73,22 @@ class OccupancyGrid(torch.nn.Module):
         self.mask.copy_(mask[0, 0] & self.hull)
 
     @torch.no_grad()
-    def carve(self, cameras: Any, coverage: torch.Tensor, margin: int = 2, keep_unseen: bool = True) -> None:
-        """Space carving (visual hull): mark empty every cell whose centre projects, in some camera, onto a pixel
-        farther than ``margin`` pixels from any covered pixel (``coverage (C,H,W)`` bool, e.g. alpha > 0).
-        Points inside an object project onto covered pixels in every view, so with ``margin`` ≥ the projected
-        half-diagonal of a cell no cell containing the object is carved. Cells outside a camera's image are kept
-        (``keep_unseen=False``: carved — what remains is seen by every camera).
+    def carve(self, cameras: Any, free: torch.Tensor, margin: int = 2, keep_unseen: bool = True) -> None:
+        """Space carving: mark empty every cell that, in some camera, lies wholly in front of what the pixels within
+        ``margin`` pixels of its centre's projection see — ``free (C,H,W)``, the camera-space depth up to which each
+        pixel's ray is known to be empty (:func:`silhouette_depths`: ``inf`` off an object's silhouette, 0 on it, for
+        the visual hull; a photometric hull gives where a layer is seen). A cell is in front when its centre's depth
+        plus its half diagonal is below the smallest ``free`` there. Points inside an object lie behind every ray
+        that sees it, so with ``margin`` ≥ the projected half-diagonal of a cell no cell containing the object is
+        carved. Cells outside a camera's image are kept (``keep_unseen=False``: carved — what remains is seen by every
+        camera).
         """
         lo, hi = self.bbox
         r = self.resolution
         axes = [lo[d] + (torch.arange(r, device=lo.device) + 0.5) * (hi[d] - lo[d]) / r for d in range(3)]
         centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
-        grown = F.max_pool2d(coverage.float()[:, None], 2 * margin + 1, stride=1, padding=margin)[:, 0] > 0
+        radius = float(((hi - lo) / r).norm()) / 2
+        nearest = -F.max_pool2d(-free.float()[:, None], 2 * margin + 1, stride=1, padding=margin)[:, 0]
         keep = torch.ones(len(centres), dtype=torch.bool, device=lo.device)
         w2c = torch.linalg.inv(cameras.c2w.to(lo.device))
         for i in range(len(cameras)):
@@ -89,7 +99,7 @@ class OccupancyGrid(torch.nn.Module):
             seen = (depth > 0) & (x >= 0) & (x < cameras.width) & (y >= 0) & (y < cameras.height)
             col = x.clamp(0, cameras.width - 1).long()
             row = y.clamp(0, cameras.height - 1).long()
-            keep &= (~seen & keep_unseen) | (seen & grown[i, row, col])
+            keep &= (~seen & keep_unseen) | (seen & (depth + radius >= nearest[i, row, col]))
         self.hull &= keep.reshape(r, r, r)
         self.mask &= self.hull
 

@@ -10,6 +10,7 @@ import torch
 from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.fields.encoding import DenseGrid, spherical_harmonics
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
+from nerfedit_plugin.fields.occupancy import silhouette_depths
 from nerfedit_plugin.training.trainer import evaluate
 
 BOX = torch.tensor([[-0.5, -0.4, -0.3], [0.5, 0.4, 0.3]])
@@ -87,7 +88,7 @@ def test_occupancy_is_empty_outside_the_box():
 def test_carving_keeps_every_cell_of_the_object(tiny_scene):
     data = load_dataset(tiny_scene, "train")
     field = NerfConfig.tiny().setup(scene_bbox=data.scene_bbox)
-    field.occupancy.carve(data.cameras, data.alpha > 0)
+    field.occupancy.carve(data.cameras, silhouette_depths(data.alpha > 0))
     assert field.occupancy.fraction < 0.6  # the hull is much smaller than the box
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
 

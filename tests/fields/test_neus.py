@@ -13,6 +13,7 @@ from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField
+from nerfedit_plugin.fields.occupancy import silhouette_depths
 from nerfedit_plugin.io.checkpoint import load_field
 from nerfedit_plugin.render.renderer import RenderConfig
 from nerfedit_plugin.training.trainer import evaluate
@@ -141,7 +142,7 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
     )
     config = NeusConfig(resolution=32, upsample_steps=(), occupancy_resolution=0, init_shell=0)
     field = config.setup(scene_bbox=data.scene_bbox)
-    field.init_from_hull(data.cameras, data.alpha > 0)
+    field.init_from_hull(data.cameras, silhouette_depths(data.alpha > 0))
     vertices = field.grid.vertex_points().reshape(-1, 3)
     radius, truth = 0.5, vertices.norm(dim=1) - 0.5  # the generator scales the ball to a diameter of 1
     values = sdf(field, vertices)
@@ -150,7 +151,7 @@ def test_visual_hull_initialisation_of_a_ball(tmp_path):
     assert (values[near] - truth[near]).abs().mean() < 0.02 * radius * 2
     # the default start is the hull's shell: |d + t/2| − t/2 of the solid hull's distance d, hollow inside
     shell = dataclasses.replace(config, init_shell=3.0).setup(scene_bbox=data.scene_bbox)
-    shell.init_from_hull(data.cameras, data.alpha > 0)
+    shell.init_from_hull(data.cameras, silhouette_depths(data.alpha > 0))
     t = 3.0 * shell.cell
     torch.testing.assert_close(sdf(shell, vertices), (values + t / 2).abs() - t / 2, atol=1e-5, rtol=0)
     assert (sdf(shell, vertices)[truth < -0.03 - t] > 0).all()
