@@ -41,7 +41,7 @@ SWEEP_CANDIDATES = 81
 DISTINCT = 0.5
 """A sweep's best colour variance must be below this share of the median over the candidates for its layer to be
 used."""
-AGREE = 0.08
+AGREE = 0.05
 """:func:`free_depths`: a pixel sees a layer when no colour channel differs by more than this from the median of the
 other views at its crossing ..."""
 AGREE_VIEWS = 3
