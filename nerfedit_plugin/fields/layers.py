@@ -257,49 +257,47 @@ def fit_far_sphere(layer: FarSphereLayer, dataset, ground: GroundLayer | None = 
 
 
 @torch.no_grad()
-def free_depths(ground: GroundLayer | None, far: FarSphereLayer | None, dataset, chunk: int = 65536):
+def free_depths(ground: GroundLayer | None, far: FarSphereLayer | None, dataset) -> torch.Tensor | None:
     """How far each training pixel's ray is empty ``(C,H,W)`` (camera-space depth; module docstring): up to where it
     first meets the active ``ground`` plane (going down, inside the foreground box too) or the active ``far`` sphere,
     when the pixel's colour is within :data:`AGREE` of the median colour of the other views there (bilinear, at least
     :data:`AGREE_VIEWS` views whose frame holds the point, occlusion not tested), else 0. None when no layer is
     active. A pixel that sees an object in front of the layer disagrees with the views that see the layer there;
     where most views see something else, the median is not the pixel's layer colour either, so the test errs towards
-    0 (not known empty)."""
-    active = [layer for layer in (ground, far) if layer is not None and bool(layer.active)]
-    if not active:
+    0 (not known empty). One view at a time, in chunks of ~2²² colour lookups."""
+    if not any(layer is not None and bool(layer.active) for layer in (ground, far)):
         return None
     cameras, images = dataset.cameras.to("cpu"), dataset.images.cpu()
     count, height, width = len(cameras), cameras.height, cameras.width
-    origins, directions = (r.reshape(-1, 3) for r in generate_rays(cameras))
-    t = torch.full((len(origins),), math.inf)
-    if ground is not None and bool(ground.active):
-        up = ground.up.cpu()
-        down = directions @ up
-        at = (float(ground.height) - origins @ up) / torch.where(down < -1e-6, down, torch.full_like(down, -1e-6))
-        t = torch.where((down < -1e-6) & (at > 0), at, t)
-    if far is not None and bool(far.active):
-        device = far.centre.device
-        t = torch.minimum(t, far.crossing(origins.to(device), directions.to(device))[0].cpu())
-    view = torch.arange(len(origins)) // (height * width)
-    forward = -cameras.c2w[:, :3, 2]
-    depth = t * (directions * forward[view]).sum(-1)
     world_to_camera = torch.linalg.inv(cameras.c2w)
     planes = images.permute(0, 3, 1, 2)
-    seen = torch.zeros(len(origins), dtype=torch.bool)
-    for start in range(0, len(origins), chunk):
-        rows = slice(start, start + chunk)
-        points = origins[rows] + t[rows, None] * directions[rows]
-        colours = torch.full((len(points), count, 3), math.nan)
-        for i in range(count):
-            local = points @ world_to_camera[i, :3, :3].T + world_to_camera[i, :3, 3]  # OpenGL: looking down −z
-            x = cameras.fx[i] * local[:, 0] / -local[:, 2] + cameras.cx[i]
-            y = -cameras.fy[i] * local[:, 1] / -local[:, 2] + cameras.cy[i]
-            inside = (local[:, 2] < 0) & (x >= 0) & (x < width) & (y >= 0) & (y < height) & (view[rows] != i)
-            uv = torch.stack([x * (2 / width) - 1, y * (2 / height) - 1], -1).nan_to_num(0.0)
-            sampled = F.grid_sample(planes[i : i + 1], uv[None, None], align_corners=False)[0, :, 0].T
-            colours[:, i] = torch.where(inside[:, None], sampled, math.nan)
-        views = (~colours[..., 0].isnan()).sum(1)
-        median = colours.nanmedian(dim=1).values
-        agree = (images.reshape(-1, 3)[rows] - median).abs().amax(-1) <= AGREE
-        seen[rows] = agree & (views >= AGREE_VIEWS) & t[rows].isfinite()
-    return torch.where(seen, depth, 0.0).reshape(count, height, width)
+    chunk = max(1024, (1 << 22) // count)
+    free = torch.zeros(count, height * width)
+    for view in range(count):
+        origins, directions = (r.reshape(-1, 3) for r in generate_rays(cameras, view))
+        t = torch.full((len(origins),), math.inf)
+        if ground is not None and bool(ground.active):
+            up = ground.up.cpu()
+            down = directions @ up
+            at = (float(ground.height) - origins @ up) / torch.where(down < -1e-6, down, torch.full_like(down, -1e-6))
+            t = torch.where((down < -1e-6) & (at > 0), at, t)
+        if far is not None and bool(far.active):
+            device = far.centre.device
+            t = torch.minimum(t, far.crossing(origins.to(device), directions.to(device))[0].cpu())
+        for start in range(0, len(origins), chunk):
+            rows = slice(start, start + chunk)
+            points = origins[rows] + t[rows, None] * directions[rows]
+            colours = torch.full((len(points), count, 3), math.nan)
+            for i in range(count):
+                local = points @ world_to_camera[i, :3, :3].T + world_to_camera[i, :3, 3]  # OpenGL: looking down −z
+                x = cameras.fx[i] * local[:, 0] / -local[:, 2] + cameras.cx[i]
+                y = -cameras.fy[i] * local[:, 1] / -local[:, 2] + cameras.cy[i]
+                inside = (local[:, 2] < 0) & (x >= 0) & (x < width) & (y >= 0) & (y < height) & (i != view)
+                uv = torch.stack([x * (2 / width) - 1, y * (2 / height) - 1], -1).nan_to_num(0.0)
+                sampled = F.grid_sample(planes[i : i + 1], uv[None, None], align_corners=False)[0, :, 0].T
+                colours[:, i] = torch.where(inside[:, None], sampled, math.nan)
+            enough = (~colours[..., 0].isnan()).sum(1) >= AGREE_VIEWS
+            agree = (images[view].reshape(-1, 3)[rows] - colours.nanmedian(dim=1).values).abs().amax(-1) <= AGREE
+            depth = t[rows] * (directions[rows] @ -cameras.c2w[view, :3, 2])
+            free[view, rows] = torch.where(agree & enough & t[rows].isfinite(), depth, 0.0)
+    return free.reshape(count, height, width)
