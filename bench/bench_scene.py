@@ -53,6 +53,7 @@ from nerfedit_plugin.data.synthetic import GenerateConfig  # noqa: E402
 from nerfedit_plugin.edit.job import run_edit  # noqa: E402
 from nerfedit_plugin.errors import NerfEditError  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig  # noqa: E402
+from nerfedit_plugin.fields.neus import NeusConfig  # noqa: E402
 from nerfedit_plugin.io.run import open_run, train_run  # noqa: E402
 from nerfedit_plugin.registry import DEFORMERS, discover  # noqa: E402
 from nerfedit_plugin.render.renderer import render_image  # noqa: E402
@@ -89,9 +90,10 @@ def dataset(cache: Path) -> Path:
     return data
 
 
-def trained_run(cache: Path, data: Path, seconds: float):
-    """The ``nerf`` defaults trained ``seconds`` (CPU clock) on ``data``: a run folder, kept in ``cache``."""
-    out = cache / f"run-nerf-{seconds:g}s"
+def trained_run(cache: Path, data: Path, seconds: float, field: str = "nerf"):
+    """The ``field`` backend's defaults (``nerf`` or ``neus``) trained ``seconds`` (CPU clock) on ``data``: a run
+    folder, kept in ``cache``."""
+    out = cache / f"run-{field}-{seconds:g}s"
     if (out / "field.pt").is_file():
         try:
             run = open_run(out)
@@ -99,11 +101,11 @@ def trained_run(cache: Path, data: Path, seconds: float):
             return run, json.loads((out / "log.json").read_text())
         except NerfEditError as error:
             print(f"   the cached run does not load ({str(error)[:160]}…): training again")
-    defaults = NerfConfig()
+    defaults = {"nerf": NerfConfig, "neus": NeusConfig}[field]()
     train = dataclasses.replace(
         defaults.train, max_seconds=seconds, clock="cpu", progress=False, eval_every_seconds=0, eval_views=3
     )
-    return train_run("nerf", dataclasses.replace(defaults, train=train), data, out, overwrite=True, device="cpu")
+    return train_run(field, dataclasses.replace(defaults, train=train), data, out, overwrite=True, device="cpu")
 
 
 def mesh_filled(field, data: Path):

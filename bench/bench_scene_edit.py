@@ -1,7 +1,9 @@
 """Scene edits on a trained field, as a user makes them (issue 15): extract, select one object, move it, render.
 
-The scene and the trained ``nerf`` run are :mod:`bench_scene`'s (bunny and cow on the generated floor inside the far
-shell; the ``nerf`` defaults with their background model, trained ``--seconds`` of CPU time; cached). The user path:
+The scene and the trained run are :mod:`bench_scene`'s (bunny and cow on the generated floor inside the far shell;
+the ``--field`` backend's defaults with their background model, trained ``--seconds`` of CPU time; cached). ``neus``
+by default: its surface is what a user extracts and edits (a ``nerf`` field of the scene holds its objects as
+semi-transparent volumes, below the default extraction level). The user path:
 ``extract_mesh`` (the foreground box), an ``objects`` spec that selects the bunny on the *extracted* mesh
 (``component`` near its top, ``drop_plane``) and slides it :data:`SLIDE` along the floor, run by ``run_edit`` twice —
 ``vacated: empty`` and ``vacated: fill``. Ground truth: the generator's scene with the bunny moved the same way
@@ -14,8 +16,8 @@ Measured on the test views (PSNR in dB against the ground truth of the edited sc
 - ``arrived``: pixels the bunny covers after the edit only; ``vacated``: pixels it covered before only — what the
   floor shows where it stood, ``empty`` against ``fill``.
 
-Usage: ``python bench/bench_scene_edit.py [--seconds 300] [--views 10] [--level L] [--cache DIR]`` (``--level``: the
-extraction level, for a field trained too briefly to reach the default one).
+Usage: ``python bench/bench_scene_edit.py [--field neus] [--seconds 300] [--views 10] [--level L] [--cache DIR]``
+(``--level``: the extraction level, for a field trained too briefly to reach the default one).
 """
 
 from __future__ import annotations
@@ -55,7 +57,8 @@ def psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=300.0, help="training budget of the nerf field (CPU s)")
+    parser.add_argument("--field", choices=("nerf", "neus"), default="neus", help="field backend to train and edit")
+    parser.add_argument("--seconds", type=float, default=300.0, help="training budget of the field (CPU s)")
     parser.add_argument("--views", type=int, default=10, help="test views")
     parser.add_argument("--cache", type=Path, default=CACHE, help="dataset, run, proxies and edits (shared)")
     parser.add_argument("--level", type=float, default=None, help="extraction level (default: the field's)")
@@ -63,9 +66,10 @@ def main() -> None:
     args.cache.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(0)
     data = dataset(args.cache)
-    seconds, (run, log) = timed(lambda: trained_run(args.cache, data, args.seconds))
+    seconds, (run, log) = timed(lambda: trained_run(args.cache, data, args.seconds, args.field))
     trained_psnr = log["eval"][-1][1] if log.get("eval") else float("nan")
-    print(f"nerf: {log.get('steps')} steps, held-out {trained_psnr:.2f} dB ({seconds:.0f} s incl. cache): {run.path}")
+    steps = log.get("steps")
+    print(f"{args.field}: {steps} steps, held-out {trained_psnr:.2f} dB ({seconds:.0f} s incl. cache): {run.path}")
     if not run.mesh_path.is_file():
         seconds, _ = timed(lambda: extract_mesh(run, level=args.level, largest_component=False))  # several parts
         print(f"extracted {run.mesh_path} in {seconds:.1f} s")
