@@ -56,13 +56,15 @@ class NeusConfig(GridFieldConfig):
     generated bunny + cow scene after 300 CPU-s, test pixels on the objects 25.9 dB vs 18.5 dB from the box alone,
     all pixels 31.6 vs 25.6 dB (docs/benchmarks.md, "Scenes: background model")."""
     init_shell: float = 4.0
-    """With ``init_hull``: start from the hull's shell of this thickness in final cells
+    """With ``init_hull`` on images with silhouettes: start from the hull's shell of this thickness in final cells
     (``f = |d + t/2| − t/2``, ``d`` the hull's signed distance), hollow inside; 0: the solid hull. The hull closes a
     cavity no silhouette sees into (a cup, a bowl) with a lid, which a solid start has to carve away cell by cell,
     while the colour loss opens a thin lid onto the hollow. Where the object lies deeper than ``t`` inside its hull
     (the bunny's concavities), training pierces the shell and the void behind it is filled after training
     (``fill_gap``). Measured on the generated set, 300 s (docs/benchmarks.md, "Fields on the benchmark scene set"):
-    cup 33.4 dB, Chamfer 0.26 % against 26.9 dB, 1.6 % from the solid hull."""
+    cup 33.4 dB, Chamfer 0.26 % against 26.9 dB, 1.6 % from the solid hull. A scene's photometric hull starts solid:
+    below its floor it reaches the box's border unseen, and a shell there left a hollow open to the border, whose roof
+    was extracted as a second floor (32.1 dB solid vs 32.0 with the shell on bench_fields' scene)."""
     fill_gap: int = 1
     """After training, voids that reach the outside only through gaps of at most ``2·fill_gap`` grid vertices are
     filled (:meth:`NeusField.fill_voids`; 0: only voids closed off entirely). The shell start leaves such voids
@@ -165,13 +167,16 @@ class NeusField(GridField):
         return torch.cat(points)
 
     @torch.no_grad()
-    def init_from_hull(self, cameras: Any, free: torch.Tensor, margin: int = 0, keep_unseen: bool = False) -> None:
+    def init_from_hull(
+        self, cameras: Any, free: torch.Tensor, margin: int = 0, keep_unseen: bool = False, shell: float | None = None
+    ) -> None:
         """Set ``f`` at the grid vertices to the signed distance (Euclidean distance transform, scipy) to the hull that
         the pixels' free depths ``free (C,H,W)`` carve (:meth:`OccupancyGrid.carve` with ``margin`` pixels, of cells
         centred on the vertices): the visual hull of silhouettes (``silhouette_depths``; carved without keeping what
         a camera does not see, as a box corner out of every side view's frame would otherwise stay), or the
         photometric hull of a scene (:meth:`GridField.free_depths`; ``keep_unseen``: the floor runs out of the frames).
-        Kept as is when the hull is empty or fills the box."""
+        ``shell``: the hollow start's thickness in final cells (default ``init_shell``; 0: the solid hull). Kept as is
+        when the hull is empty or fills the box."""
         from scipy.ndimage import distance_transform_edt
 
         lo, hi = self.scene_bbox
@@ -185,8 +190,9 @@ class NeusField(GridField):
         width = tuple((2 * half).cpu().tolist())
         distance = distance_transform_edt(~inside, sampling=width) - distance_transform_edt(inside, sampling=width)
         distance -= np.where(inside, -1.0, 1.0) * float(half.mean())  # halfway between the vertices in and out
-        if self.config.init_shell > 0:
-            thickness = self.config.init_shell * self.cell
+        shell = self.config.init_shell if shell is None else shell
+        if shell > 0:
+            thickness = shell * self.cell
             distance = np.abs(distance + thickness / 2) - thickness / 2
         self.grid.table[:, 0] = torch.from_numpy(distance.reshape(-1) / self.cell).to(self.grid.table)
 
@@ -260,7 +266,7 @@ class NeusField(GridField):
         if config.init_hull and opaque:
             self.init_from_box()
         if config.init_hull and free is not None:
-            self.init_from_hull(dataset.cameras, free, keep_unseen=opaque)
+            self.init_from_hull(dataset.cameras, free, keep_unseen=opaque, shell=0.0 if opaque else None)
         if self.occupancy is not None and config.carve and not opaque:
             self.occupancy.carve(dataset.cameras, free)
         log = train(
