@@ -215,7 +215,7 @@ def test_free_depths_stop_at_the_first_surface_and_carve_the_box_above_the_floor
     assert float(solid[grid[:, 2] > 2 * field.cell].float().mean()) < 0.25  # the box start: 1
     assert bool(solid[grid[:, 2] < -2 * field.cell].all())  # below the floor: seen by no pixel
 
-    # fit starts from that hull (no margin) on its own, solid (no hollow under the floor): the box carved, the floor kept
+    # fit starts from that hull (no margin), solid (no hollow under the floor): the box carved, the floor kept
     monkeypatch.setattr("nerfedit_plugin.fields.neus.train", lambda *args, **kwargs: {})
     fitted = NeusConfig(resolution=64, upsample_steps=(), occupancy_resolution=0, fill_gap=0).setup(
         scene_bbox=floor_scene.scene_bbox
