@@ -110,14 +110,20 @@ class GroundLayer(torch.nn.Module):
         self.register_buffer("active", torch.tensor(False))
         self.texture = Texture(size, 4, torch.tensor([4.0, 0.0, 0.0, 0.0]))
 
-    def crossing(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Rays ``(R,3)`` → distance to the plane ``(R,)`` and whether it counts ``(R,)`` bool (ahead, downwards,
-        outside the box)."""
+    def plane_distance(self, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+        """Rays ``(R,3)`` → distance along each to the plane ``(R,)``, ``inf`` unless it meets it ahead going down
+        (the whole plane, the box's part too; whether or not the layer is active)."""
         down = directions @ self.up
         t = (self.height - origins @ self.up) / torch.where(down < -1e-6, down, torch.full_like(down, -1e-6))
-        point = origins + t[:, None] * directions
+        return torch.where((down < -1e-6) & (t > 0), t, torch.inf)
+
+    def crossing(self, origins: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rays ``(R,3)`` → distance to the plane ``(R,)`` and whether it counts ``(R,)`` bool (ahead, downwards,
+        outside the box, the layer active)."""
+        t = self.plane_distance(origins, directions)
+        point = origins + t.nan_to_num(posinf=0.0)[:, None] * directions
         inside = ((point >= self.box[0]) & (point <= self.box[1])).all(-1)
-        return t, (down < -1e-6) & (t > 0) & ~inside & self.active
+        return t, t.isfinite() & ~inside & self.active
 
     def query(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Points on the plane ``(M,3)`` → ``(optical thickness (M,), rgb (M,3))``."""
@@ -150,6 +156,11 @@ class FarSphereLayer(torch.nn.Module):
         direction = F.normalize(points - self.centre, dim=-1)
         rgb = torch.sigmoid(self.texture(2.0 * octahedral(direction)))
         return torch.full_like(rgb[:, 0], 30.0), rgb
+
+
+def _on_layer_device(distance, buffer: torch.Tensor, origins: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    """``distance(origins, directions)`` of a layer evaluated on the device of its ``buffer``, back on the CPU."""
+    return distance(origins.to(buffer.device), directions.to(buffer.device)).cpu()
 
 
 def _pixels(dataset, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -232,10 +243,7 @@ def fit_far_sphere(layer: FarSphereLayer, dataset, ground: GroundLayer | None = 
     centre = layer.centre.cpu()
     ground_at = torch.full((len(origins),), math.inf)  # where a ray meets the active ground plane, going down
     if ground is not None and bool(ground.active):
-        up, height = ground.up.cpu(), float(ground.height)
-        down = directions @ up
-        at = (height - origins @ up) / torch.where(down < 0, down, torch.full_like(down, -1.0))
-        ground_at = torch.where((down < 0) & (at > 0), at, ground_at)
+        ground_at = _on_layer_device(ground.plane_distance, ground.up, origins, directions)
     offset = origins - centre
     reach = float(offset.norm(dim=-1).max())
     b = (offset * directions).sum(-1)
@@ -277,13 +285,9 @@ def free_depths(ground: GroundLayer | None, far: FarSphereLayer | None, dataset)
         origins, directions = (r.reshape(-1, 3) for r in generate_rays(cameras, view))
         t = torch.full((len(origins),), math.inf)
         if ground is not None and bool(ground.active):
-            up = ground.up.cpu()
-            down = directions @ up
-            at = (float(ground.height) - origins @ up) / torch.where(down < -1e-6, down, torch.full_like(down, -1e-6))
-            t = torch.where((down < -1e-6) & (at > 0), at, t)
+            t = _on_layer_device(ground.plane_distance, ground.up, origins, directions)
         if far is not None and bool(far.active):
-            device = far.centre.device
-            t = torch.minimum(t, far.crossing(origins.to(device), directions.to(device))[0].cpu())
+            t = torch.minimum(t, _on_layer_device(lambda o, d: far.crossing(o, d)[0], far.centre, origins, directions))
         for start in range(0, len(origins), chunk):
             rows = slice(start, start + chunk)
             points = origins[rows] + t[rows, None] * directions[rows]

@@ -53,8 +53,8 @@ class NeusConfig(GridFieldConfig):
     resolution), so training starts near the surface. Opaque images (a scene) have no silhouettes: the field starts
     from the box's own surface (shrunk by two cells), carved by the photometric hull when a background layer is found
     (the pixels that see the floor or the far sphere through the box, :meth:`GridField.free_depths`) — on the
-    generated bunny + cow scene after 300 CPU-s, test pixels on the objects 25.9 dB vs 18.5 dB from the box alone,
-    all pixels 31.6 vs 25.6 dB (docs/benchmarks.md, "Scenes: background model")."""
+    generated bunny + cow scene after 300 CPU-s, test pixels on the objects 27.1 dB vs 18.5 dB from the box alone,
+    all pixels 32.2 vs 25.6 dB (docs/benchmarks.md, "The photometric hull")."""
     init_shell: float = 4.0
     """With ``init_hull`` on images with silhouettes: start from the hull's shell of this thickness in final cells
     (``f = |d + t/2| − t/2``, ``d`` the hull's signed distance), hollow inside; 0: the solid hull. The hull closes a
