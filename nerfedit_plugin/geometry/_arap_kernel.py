@@ -165,11 +165,12 @@ def fit_rotations(covariances, rotations, ill):
 
 
 @njit(cache=True, parallel=True)
-def piece_covariances(x, elements, pairs, wedges, per_corner, out):
-    """Positions x (N,3) → ``out`` the covariances ``Σ u (x_i − x_j)ᵀ`` (3,3) of every element ``out[f]`` (F,3,3)
-    or, ``per_corner``, of the edges at every corner ``out[f·C + c]`` (F·C,3,3)."""
+def piece_covariances(x, elements, pairs, wedges, per_corner, subset, out):
+    """Positions x (N,3) → ``out`` the covariances ``Σ u (x_i − x_j)ᵀ`` (3,3) of the elements ``f`` in ``subset``,
+    ``out[f]`` (F,3,3) or, ``per_corner``, of the edges at their corners ``out[f·C + c]`` (F·C,3,3)."""
     n_corners = elements.shape[1]
-    for f in prange(len(elements)):
+    for t in prange(len(subset)):
+        f = subset[t]
         if per_corner:
             out[f * n_corners : (f + 1) * n_corners] = 0.0
         else:
@@ -192,10 +193,12 @@ def piece_covariances(x, elements, pairs, wedges, per_corner, out):
 
 
 @njit(cache=True, parallel=True)
-def local_step(pieces, group_start, group_pieces, covariances, rotations, traces, ill):
-    """Per group g: ``covariances[g] = S_g`` (3,3), the sum of its ``pieces`` (:func:`piece_covariances`), its best
-    rotation ``rotations[g]`` (:func:`_horn`; ``ill[g]``: nearly double top eigenvalue), ``traces[g] = tr(R_g S_g)``."""
-    for g in prange(len(group_start) - 1):
+def local_step(pieces, group_start, group_pieces, groups, covariances, rotations, traces, ill):
+    """Per group g in ``groups``: ``covariances[g] = S_g`` (3,3), the sum of its ``pieces``
+    (:func:`piece_covariances`), its best rotation ``rotations[g]`` (:func:`_horn`; ``ill[g]``: nearly double top
+    eigenvalue), ``traces[g] = tr(R_g S_g)``."""
+    for t in prange(len(groups)):
+        g = groups[t]
         s00 = s01 = s02 = s10 = s11 = s12 = s20 = s21 = s22 = 0.0
         for k in range(group_start[g], group_start[g + 1]):
             p = pieces[group_pieces[k]]
@@ -222,10 +225,12 @@ def local_step(pieces, group_start, group_pieces, covariances, rotations, traces
 
 
 @njit(cache=True, parallel=True)
-def rotate_edges(elements, pairs, wedges, rotations, mode, out):
-    """``out[f, e] = (Σ_{g ∋ e} R_g) u`` (F,E,3): each element edge turned by the rotations of the groups holding it."""
+def rotate_edges(elements, pairs, wedges, rotations, mode, subset, out):
+    """``out[f, e] = (Σ_{g ∋ e} R_g) u`` (F,E,3) for the elements f in ``subset``: each of their edges turned by the
+    rotations of the groups holding it."""
     n_corners = elements.shape[1]
-    for f in prange(len(elements)):
+    for t in prange(len(subset)):
+        f = subset[t]
         m00 = m01 = m02 = m10 = m11 = m12 = m20 = m21 = m22 = 0.0
         if mode != SPOKES:
             for corner in range(n_corners if mode == SPOKES_AND_RIMS else 1):

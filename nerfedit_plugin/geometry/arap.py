@@ -103,16 +103,15 @@ def _rotations(covariances: np.ndarray, rotations: np.ndarray | None = None) -> 
     rotations = np.empty_like(covariances) if rotations is None else rotations
     ill = np.empty(len(covariances), dtype=bool)
     _kernel.launch(_kernel.fit_rotations, covariances, rotations, ill)
-    _refit_ill(covariances, rotations, ill)
+    _refit_ill(covariances, rotations, np.flatnonzero(ill))
     return rotations
 
 
 def _refit_ill(covariances: np.ndarray, rotations: np.ndarray, ill: np.ndarray) -> None:
-    """Replace the rotations of the groups flagged ``ill`` by :func:`fit_rotations_numpy`'s (SVD)."""
-    if ill.any():
-        idx = np.flatnonzero(ill)
-        stacked = covariances[idx].transpose(1, 0, 2).reshape(-1, 3)
-        rotations[idx] = fit_rotations_numpy(stacked).reshape(3, -1, 3).transpose(1, 2, 0)
+    """Replace the rotations of the groups ``ill`` (indices) by :func:`fit_rotations_numpy`'s (SVD)."""
+    if len(ill):
+        stacked = covariances[ill].transpose(1, 0, 2).reshape(-1, 3)
+        rotations[ill] = fit_rotations_numpy(stacked).reshape(3, -1, 3).transpose(1, 2, 0)
 
 
 def fit_rotations_numpy(stacked: np.ndarray) -> np.ndarray:
@@ -305,6 +304,17 @@ class ArapSolver:
             raise NerfEditError(
                 f"ARAP: vertex {vertex} has no stiffness: all its elements are degenerate (zero area or volume)"
             )
+        # what a solve can change: the elements with a free vertex (their edges move), the groups holding those
+        # edges, and the elements whose covariance pieces these groups pool; other groups keep their rotations
+        moving = np.flatnonzero(is_free[elements].any(1))
+        if energy == "elements":
+            groups, pieced = moving, moving
+        else:
+            held = np.zeros(n, dtype=bool)
+            held[elements[moving]] = True
+            groups, pieced = np.flatnonzero(held), np.flatnonzero(held[elements].any(1))
+        self._moving, self._active = moving, (pieced, groups)
+        self._everything = (np.arange(len(elements)), np.arange(self.n_groups))
         self._system_known = rows[:, self.known].tocsr()
         self._system_free = rows[:, self.free].tocsr()
         self._factor = SparseCholesky(self._system_free) if len(self.free) else None
@@ -332,25 +342,33 @@ class ArapSolver:
             )
 
     # ---- iteration pieces ----------------------------------------------------------------------
-    def _local(self, x: np.ndarray, targets: np.ndarray | None) -> tuple[np.ndarray, float]:
+    def _local(self, x: np.ndarray, targets: np.ndarray | None, active: bool = False) -> tuple[np.ndarray, float]:
         """Best rotations ``R_g (G,3,3)`` for centred positions ``x`` and the energy ``E(x)`` with them.
 
-        ``E = tr(XᵀmLX) − 2 Σ_g tr(R_g S_g) + tr(PᵀmLP)`` costs one sparse product but loses digits to
-        cancellation when E ≪ tr(PᵀmLP) (near-rigid results); there the residuals are summed term by term.
+        ``active``: refit only the groups a solve can change (holding an edge of an element with a free vertex);
+        the others keep the traces ``tr(R_g S_g)`` of the last full call, which must have had the same fixed
+        positions, and their rotations are left unset. ``E = tr(XᵀmLX) − 2 Σ_g tr(R_g S_g) + tr(PᵀmLP)`` costs one
+        sparse product but loses digits to cancellation when E ≪ tr(PᵀmLP) (near-rigid results); there the
+        residuals are summed term by term.
         """
         pieces, covariances, traces, ill, _ = self._scratch()
+        pieced, groups = self._active if active else self._everything
         rotations = np.empty((self.n_groups, 3, 3))
         _kernel.launch(
-            _kernel.piece_covariances, x, self._elements, self._pairs, self._wedges, self._per_corner, pieces
+            _kernel.piece_covariances, x, self._elements, self._pairs, self._wedges, self._per_corner, pieced, pieces
         )
         _kernel.launch(
-            _kernel.local_step, pieces, self._group_start, self._group_pieces, covariances, rotations, traces, ill
-        )
-        if ill.any():
-            _refit_ill(covariances, rotations, ill)
-            traces[ill] = np.einsum("gca,gac->g", rotations[ill], covariances[ill])
+            _kernel.local_step, pieces, self._group_start, self._group_pieces, groups, covariances, rotations, traces,
+            ill,
+        )  # fmt: skip
+        flagged = groups[ill[groups]]
+        if len(flagged):
+            _refit_ill(covariances, rotations, flagged)
+            traces[flagged] = np.einsum("gca,gac->g", rotations[flagged], covariances[flagged])
         value = float(np.sum(x * (self._laplacian @ x))) - 2.0 * float(np.sum(traces)) + self._rest_energy
         if abs(value) < RESIDUAL_BELOW * self._rest_energy:  # few digits left after cancellation: sum the residuals
+            if active:  # the sum needs every rotation
+                return self._local(x, targets)
             terms = np.empty(len(self._elements))  # rare: not kept
             _kernel.launch(
                 _kernel.residual_energy, x, self.rest, self._elements, self._pairs, self._weights, rotations,
@@ -373,9 +391,12 @@ class ArapSolver:
         return self._buffers
 
     def _rotated_edges(self, rotations: np.ndarray) -> np.ndarray:
-        """``(K R)`` (free rows, 3): the global step's right-hand side ``Σ ±R_g w (p_i − p_j)`` at each free vertex."""
+        """``(K R)`` (free rows, 3): the global step's right-hand side ``Σ ±R_g w (p_i − p_j)`` at each free vertex
+        (reads the rotations of the groups :meth:`_local` refits with ``active``)."""
         turned, out = self._scratch()[4], np.empty((len(self.free), 3))
-        _kernel.launch(_kernel.rotate_edges, self._elements, self._pairs, self._wedges, rotations, self._mode, turned)
+        _kernel.launch(
+            _kernel.rotate_edges, self._elements, self._pairs, self._wedges, rotations, self._mode, self._moving, turned
+        )
         _kernel.launch(
             _kernel.gather_edges, self._elements, self._pairs, turned, self.free, self._vertex_start,
             self._vertex_corners, out,
@@ -471,10 +492,10 @@ class ArapSolver:
             plain = self._factor.solve(self._rotated_edges(rotations) + rhs)
             trial = x.copy()
             trial[self.free] = accelerator(plain.ravel(), (plain - x[self.free]).ravel()).reshape(-1, 3)
-            trial_rotations, trial_energy = self._local(trial, targets)
+            trial_rotations, trial_energy = self._local(trial, targets, active=True)
             if accelerator.extrapolated and not trial_energy < energy:  # no gain: take the plain local/global iterate
                 trial[self.free] = plain
-                trial_rotations, trial_energy = self._local(trial, targets)
+                trial_rotations, trial_energy = self._local(trial, targets, active=True)
             if trial_energy > energy:  # only rounding makes a plain step increase E: we are at the minimum
                 return x, True
             x, rotations, energy = trial, trial_rotations, trial_energy
@@ -504,14 +525,14 @@ class ArapSolver:
             for attempt in range(LINE_SEARCH_STEPS if history.count else 1):
                 alpha = 0.5**attempt
                 trial[free] = xf - alpha * r
-                trial_rotations, trial_energy = self._local(trial, targets)
+                trial_rotations, trial_energy = self._local(trial, targets, active=True)
                 if trial_energy <= energy - 2.0 * ARMIJO * alpha * slope:
                     break
             else:
                 if history.count:  # the plain local/global step
                     history.reset()
                     trial[free] = xf - p
-                    trial_rotations, trial_energy = self._local(trial, targets)
+                    trial_rotations, trial_energy = self._local(trial, targets, active=True)
             if trial_energy > energy:  # only rounding makes a plain step increase E: we are at the minimum
                 return x, True
             new_xf = trial[free]
