@@ -309,3 +309,37 @@ def residual_energy(x, rest, elements, pairs, weights, rotations, mode, out):
             else:
                 total += _residual(rotations[i], x, rest, i, j, w) + _residual(rotations[j], x, rest, i, j, w)
         out[f] = total
+
+
+# ---- L-BFGS vector kernels (flat float64 arrays): the two-loop recursion in one pass per history pair ----------------
+@njit(cache=True, parallel=True)
+def axpy_dot(q, a, y, s):
+    """``q −= a y`` in place, then ``sᵀq``."""
+    total = 0.0
+    for i in prange(len(q)):
+        value = q[i] - a * y[i]
+        q[i] = value
+        total += s[i] * value
+    return total
+
+
+@njit(cache=True, parallel=True)
+def combine(base, scale, weights, rows, slots, out):
+    """``out = scale (base − Σ_k weights[k] rows[slots[k]])``."""
+    for i in prange(len(base)):
+        value = base[i]
+        for k in range(len(slots)):
+            value -= weights[k] * rows[slots[k], i]
+        out[i] = scale * value
+
+
+@njit(cache=True, parallel=True)
+def difference_dots(a, b, c, d):
+    """``(sᵀy, sᵀs, yᵀy)`` for ``s = a − b``, ``y = c − d``."""
+    sy = ss = yy = 0.0
+    for i in prange(len(a)):
+        s, y = a[i] - b[i], c[i] - d[i]
+        sy += s * y
+        ss += s * s
+        yy += y * y
+    return sy, ss, yy

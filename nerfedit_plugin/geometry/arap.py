@@ -165,42 +165,57 @@ class _Lbfgs:
 
     Besides the steps ``s`` and gradient changes ``y`` it keeps ``z = A⁻¹y`` (the change of ``A⁻¹h``, which the
     caller computes anyway for the plain local/global step), so ``A⁻¹q = A⁻¹h − Σ α z`` and ``γ`` cost no
-    back-substitution. Vectors are ``(n, 3)``.
+    back-substitution. Vectors are ``(n, 3)``, kept flat; each loop of the recursion makes one compiled pass per
+    pair (the update of one pair fused with the dot product of the next), ``A⁻¹q`` one pass in all.
     """
 
     def __init__(self, depth: int, shape: tuple[int, int]) -> None:
-        self.s, self.y, self.z = (np.empty((depth, *shape)) for _ in range(3))
+        self.shape, size = shape, shape[0] * shape[1]
+        self.s, self.y, self.z = (np.empty((depth, size)) for _ in range(3))
         self.rho = np.empty(depth)
         self.count = 0  # pairs pushed since the last reset (the newest min(count, depth) are kept)
 
     def reset(self) -> None:
         self.count = 0
 
-    def push(self, s: np.ndarray, y: np.ndarray, z: np.ndarray) -> None:
-        """Add the pair ``s = x⁺ − x``, ``y = h⁺ − h`` (and ``z = A⁻¹y``) unless its curvature ``sᵀy`` is not
-        clearly positive (E is not convex: such a pair would make the inverse Hessian indefinite)."""
-        curvature = _dot(s, y)
-        if not curvature > 1e-12 * np.sqrt(_dot(s, s) * _dot(y, y)):
+    def push(
+        self, x: tuple[np.ndarray, np.ndarray], h: tuple[np.ndarray, np.ndarray], p: tuple[np.ndarray, np.ndarray]
+    ):
+        """Add the pair ``s = x⁺ − x``, ``y = h⁺ − h`` (and ``z = A⁻¹y = p⁺ − p``), each given as ``(new, old)``,
+        unless its curvature ``sᵀy`` is not clearly positive (E is not convex: such a pair would make the inverse
+        Hessian indefinite)."""
+        (x1, x0), (h1, h0), (p1, p0) = ((a.reshape(-1), b.reshape(-1)) for a, b in (x, h, p))
+        curvature, ss, yy = _kernel.launch(_kernel.difference_dots, x1, x0, h1, h0)
+        if not curvature > 1e-12 * np.sqrt(ss * yy):
             return
         slot = self.count % len(self.rho)
-        self.s[slot], self.y[slot], self.z[slot], self.rho[slot] = s, y, z, 1.0 / curvature
+        np.subtract(x1, x0, out=self.s[slot])
+        np.subtract(h1, h0, out=self.y[slot])
+        np.subtract(p1, p0, out=self.z[slot])
+        self.rho[slot] = 1.0 / curvature
         self.count += 1
 
     def direction(self, h: np.ndarray, solved: np.ndarray) -> np.ndarray:
         """``H h`` for the half gradient ``h`` and ``solved = A⁻¹h`` (returned as is, a copy, without history)."""
         m = min(self.count, len(self.rho))
-        slots = [(self.count - 1 - k) % len(self.rho) for k in range(m)]  # newest first
-        q, r, alphas = h.copy(), solved.copy(), np.empty(m)
-        for k, slot in enumerate(slots):
-            alphas[k] = self.rho[slot] * _dot(self.s[slot], q)
-            q -= alphas[k] * self.y[slot]
-            r -= alphas[k] * self.z[slot]  # r = A⁻¹q
-        if m:
-            r *= 1.0 / (self.rho[slots[0]] * _dot(self.y[slots[0]], self.z[slots[0]]))  # γ = sᵀy / yᵀA⁻¹y
-        for k in reversed(range(m)):
-            slot = slots[k]
-            r += (alphas[k] - self.rho[slot] * _dot(self.y[slot], r)) * self.s[slot]
-        return r
+        if not m:
+            return solved.copy()
+        slots = np.array([(self.count - 1 - k) % len(self.rho) for k in range(m)])  # newest first
+        alphas, rho, s, y = np.empty(m), self.rho, self.s, self.y
+        q = h.reshape(-1).copy()
+        alphas[0] = rho[slots[0]] * _flat_dot(s[slots[0]], q)
+        for k in range(m - 1):  # q ← q − α_k y_k, α_{k+1} = ρ s_{k+1}ᵀq
+            alphas[k + 1] = rho[slots[k + 1]] * _kernel.launch(
+                _kernel.axpy_dot, q, alphas[k], y[slots[k]], s[slots[k + 1]]
+            )
+        gamma = 1.0 / (rho[slots[0]] * _flat_dot(y[slots[0]], self.z[slots[0]]))  # γ = sᵀy / yᵀA⁻¹y
+        r = np.empty_like(q)
+        _kernel.launch(_kernel.combine, solved.reshape(-1), gamma, alphas, self.z, slots, r)  # r = γ A⁻¹q
+        beta = rho[slots[-1]] * _flat_dot(y[slots[-1]], r)
+        for k in reversed(range(m)):  # r ← r + (α_k − β_k) s_k, β_{k−1} = ρ y_{k−1}ᵀr (the last dot unused)
+            dot = _kernel.launch(_kernel.axpy_dot, r, beta - alphas[k], s[slots[k]], y[slots[max(k - 1, 0)]])
+            beta = rho[slots[k - 1]] * dot
+        return r.reshape(self.shape)
 
 
 class ArapSolver:
@@ -538,7 +553,7 @@ class ArapSolver:
             new_xf = trial[free]
             new_h = self._system_free @ new_xf - self._rotated_edges(trial_rotations) - rhs
             new_p = self._factor.solve(new_h)
-            history.push(new_xf - xf, new_h - h, new_p - p)  # A⁻¹(h⁺ − h) = p⁺ − p: no back-substitution
+            history.push((new_xf, xf), (new_h, h), (new_p, p))  # A⁻¹(h⁺ − h) = p⁺ − p: no back-substitution
             x, xf, h, p, energy = trial, new_xf, new_h, new_p, trial_energy
             energies.append(energy)
             if callback is not None:
@@ -546,6 +561,11 @@ class ArapSolver:
             if _converged(energies, tolerance, floor):
                 return x, True
         return x, False
+
+
+def _flat_dot(a: np.ndarray, b: np.ndarray) -> float:
+    """``aᵀb`` of flat arrays (einsum, as :func:`_dot`)."""
+    return float(np.einsum("i,i->", a, b))
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
