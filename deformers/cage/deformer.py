@@ -28,6 +28,7 @@ from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.mesh import SurfaceMesh, cluster_vertices
+from nerfedit_plugin.geometry.normals import face_normals
 from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 
 NEAR_CAGE = 1e-4  # closer to the cage than this × its size: the exact winding number decides inside / outside
@@ -100,7 +101,7 @@ def validate_cage(cage: SurfaceMesh, label: str) -> SurfaceMesh:
     if np.any((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])):
         raise NerfEditError(f"{label}: has triangles with a repeated vertex")
     v = cage.vertices
-    area2 = np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
+    area2 = np.linalg.norm(face_normals(v, faces), axis=1)
     if np.any(area2 <= 1e-12 * cage.bbox_diagonal**2):
         raise NerfEditError(
             f"{label}: {np.count_nonzero(area2 <= 1e-12 * cage.bbox_diagonal**2)} triangles have zero area"

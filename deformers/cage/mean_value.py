@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from nerfedit_plugin.geometry.normals import face_normals
+
 VERTEX_EPS = 1e-12  # ‖x − v‖ ≤ VERTEX_EPS × cage size ⇒ x is the vertex
 EDGE_EPS = 1e-8  # distance to an edge ≤ EDGE_EPS × cage size ⇒ linear interpolation along the edge
 PLANE_EPS = 1e-12  # distance to a face's plane ≤ PLANE_EPS × cage size ⇒ x is on the face or the face is skipped
@@ -48,7 +50,7 @@ class CageGeometry:
         v = vertices - origin
         opposite = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1).reshape(-1, 2)
         edges, inverse = np.unique(np.sort(opposite, axis=1), axis=0, return_inverse=True)
-        normals = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+        normals = face_normals(v, faces)
         n = len(faces)
         scatter = sp.csr_matrix((np.ones(3 * n), (faces.T.reshape(-1), np.arange(3 * n))), shape=(len(v), 3 * n))
         return cls(

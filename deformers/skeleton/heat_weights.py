@@ -14,7 +14,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from nerfedit_plugin.geometry import raycast
-from nerfedit_plugin.geometry.arap import ELEMENT_EDGES, cotangent_weights
+from nerfedit_plugin.geometry.cotangent import cotangent_weights, edge_laplacian
+from nerfedit_plugin.geometry.normals import face_normals
 from nerfedit_plugin.timing import Progress, no_progress
 
 #: relative distance within which bones count as equidistant from a vertex
@@ -29,13 +30,7 @@ def cotangent_stiffness(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matri
 
     Assembled from the core's per-triangle cotangent weights (0 on degenerate triangles).
     """
-    pairs = ELEMENT_EDGES[3]
-    weights = cotangent_weights(vertices, faces).ravel()
-    ii, jj = faces[:, pairs[:, 0]].ravel(), faces[:, pairs[:, 1]].ravel()
-    n = len(vertices)
-    off = sp.coo_matrix((-weights, (ii, jj)), shape=(n, n))
-    off = (off + off.T).tocsr()
-    stiffness = (off - sp.diags(np.asarray(off.sum(1)).ravel())).tocsr()
+    stiffness = edge_laplacian(faces, cotangent_weights(vertices, faces), len(vertices))
     stiffness.eliminate_zeros()
     return stiffness
 
@@ -43,9 +38,7 @@ def cotangent_stiffness(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matri
 def lumped_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """vertices (V,3) float64, faces (F,3) int64 → ``(V,)`` float64 barycentric lumped mass: a third of the area of
     every incident triangle."""
-    area = 0.5 * np.linalg.norm(
-        np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1
-    )
+    area = 0.5 * np.linalg.norm(face_normals(vertices, faces), axis=1)
     return np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
 
 

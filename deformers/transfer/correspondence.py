@@ -25,7 +25,6 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from deformers.transfer.gradients import (
-    face_normals,
     gradient_operator,
     gradient_rows,
     to_unit,
@@ -36,6 +35,7 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.normals import face_normals
 from nerfedit_plugin.io.atomic import atomic_path
 
 CANDIDATES = 16

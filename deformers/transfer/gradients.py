@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
 from nerfedit_plugin.geometry.mesh import SurfaceMesh, unit_frame
+from nerfedit_plugin.geometry.normals import face_normals
 
 DEGENERATE = 1e-12
 """A triangle whose doubled area is at most this (in unit coordinates, bbox diagonal 1) has no gradient."""
@@ -41,15 +42,9 @@ def with_fourth_vertices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """vertices (V,3), faces (F,3) → ``X ((V + F), 3)``: the vertices, then each triangle's ``v4 = v1 + n/√‖n‖``
     (``v1`` for a triangle of zero area)."""
     v1 = vertices[faces[:, 0]]
-    normal = np.cross(vertices[faces[:, 1]] - v1, vertices[faces[:, 2]] - v1)
+    normal = face_normals(vertices, faces)
     root = np.sqrt(np.linalg.norm(normal, axis=1))
     return np.concatenate([vertices, v1 + normal / np.maximum(root, 1e-300)[:, None]])
-
-
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,3) area-weighted normals ``(v2 − v1) × (v3 − v1)``."""
-    v1 = vertices[faces[:, 0]]
-    return np.cross(vertices[faces[:, 1]] - v1, vertices[faces[:, 2]] - v1)
 
 
 def gradient_operator(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:

@@ -4,24 +4,16 @@ Each point walks on its own in a compiled loop, parallel over points. Every valu
 expression as the torch path, op by op in the working dtype, so the answers are bit-identical to it and to
 :func:`~nerfedit_plugin.bending.locate.locate_brute_force`. Scalars of the working dtype (``one``, ``neg_eps``) are
 passed in (a Python literal would promote float32 to float64); a locator's grid arrives as :class:`LocatorArrays`.
-:func:`launch` runs one kernel at a time on numba's ``workqueue`` threading layer (unless ``NUMBA_THREADING_LAYER``
-is set), on as many threads as torch uses. Why: docs/architecture.md, "Point location".
+:func:`~nerfedit_plugin.geometry.launch.launch` runs them, one at a time, on as many threads as torch uses. Why:
+docs/architecture.md, "Point location".
 """
 
 from __future__ import annotations
 
-import os
-import threading
 from typing import NamedTuple
 
-import numba
 import numpy as np
-import torch
 from numba import njit, prange
-
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"
-_LAUNCH = threading.Lock()
 
 
 class LocatorArrays(NamedTuple):
@@ -179,14 +171,6 @@ def mark_reach(first, last, slope, value, side, reach):
                         b = a - 1
                 for k in range(a, b + 1):
                     reach[row + k] = True
-
-
-def launch(kernel, *args) -> None:
-    """Run a parallel kernel on as many threads as torch uses (``torch.set_num_threads`` governs both), one launch
-    at a time."""
-    with _LAUNCH:
-        numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
-        kernel(*args)
 
 
 # ---- the build (TetLocator.__init__ with kernel="numba"; the torch build in locate.py is the reference) ----------

@@ -243,7 +243,7 @@ class DeformationField:
         """:meth:`bend` in one compiled pass (:mod:`nerfedit_plugin.bending._bend_kernel`): writes ``out``, returns
         ``(tet, empty)`` (``tet`` empty without ``tets``)."""
         from nerfedit_plugin.bending._bend_kernel import bend_points
-        from nerfedit_plugin.bending._locate_kernel import launch
+        from nerfedit_plugin.geometry.launch import launch
 
         x = x.contiguous()
         tet = torch.full((len(x) if tets else 0,), -1, dtype=torch.int64)

@@ -239,13 +239,8 @@ class TetLocator:
     def _build_compiled(self, ids: torch.Tensor, shape: torch.Tensor, strides: torch.Tensor, n_cells: int):
         """:meth:`_build_torch` in numba kernels (:mod:`nerfedit_plugin.bending._locate_kernel`, CPU): the same
         tests in the same float64 expressions, so the same grid bit for bit (the tests compare the two builds)."""
-        from nerfedit_plugin.bending._locate_kernel import (
-            cell_lists,
-            cell_masks,
-            launch,
-            register_cells,
-            unsafe_tets,
-        )
+        from nerfedit_plugin.bending._locate_kernel import cell_lists, cell_masks, register_cells, unsafe_tets
+        from nerfedit_plugin.geometry.launch import launch
 
         table, k = self._table, len(self._table)
         corners, grads = table.corners.numpy(), table.grads.numpy()
@@ -453,7 +448,8 @@ class TetLocator:
         layer whenever the box meets them, since they also take the points clamped into them. Compiled
         (:func:`~nerfedit_plugin.bending._locate_kernel.mark_reach`) on the CPU for any device: one pass over the cells
         of the tet boxes."""
-        from nerfedit_plugin.bending._locate_kernel import launch, mark_reach
+        from nerfedit_plugin.bending._locate_kernel import mark_reach
+        from nerfedit_plugin.geometry.launch import launch
 
         table = self._table
         ids = np.flatnonzero(table.usable.cpu().numpy())
@@ -639,7 +635,8 @@ class TetLocator:
     def _run(self, points: torch.Tensor, bary: torch.Tensor | None) -> torch.Tensor:
         """The tet per point of ``points (M,3)`` (any accepting one without ``bary (4,M)``, else filled too)."""
         if self.kernel == "numba":
-            from nerfedit_plugin.bending._locate_kernel import launch, locate_points
+            from nerfedit_plugin.bending._locate_kernel import locate_points
+            from nerfedit_plugin.geometry.launch import launch
 
             tet = torch.empty(len(points), dtype=torch.int64)
             out = bary.numpy() if bary is not None else np.zeros((0, 0), dtype=self.arrays.rows.dtype)

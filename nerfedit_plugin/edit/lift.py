@@ -29,6 +29,7 @@ from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.injective import InjectiveSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.normals import face_normals
 from nerfedit_plugin.geometry.refine import bisect
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 from nerfedit_plugin.timing import Progress, Span, no_progress
@@ -110,13 +111,6 @@ class FrameReport:
     it there). None where not checked (other lifts, frames within the target)."""
     iterations: int
     seconds: float
-
-
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """vertices (V,3) float64, faces (F,3) int64 → (F,3) float64 unnormalised triangle normals ``(b − a) × (c − a)``
-    (length = twice the area)."""
-    a, b, c = (vertices[faces[:, i]] for i in range(3))
-    return np.cross(b - a, c - a)
 
 
 def knn3_displacements(rest: np.ndarray, moved: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -1,41 +1,25 @@
 """Compiled (numba) CPU kernels of :class:`~nerfedit_plugin.geometry.arap.ArapSolver`: the local step, the global
 step's right-hand side and the term-by-term energy, straight from the elements (no ``(N, 3G)`` matrix).
 
-Every energy term is an element edge ``e = (i, j)`` (local pair :data:`~nerfedit_plugin.geometry.arap.ELEMENT_EDGES`)
-with weighted rest edge ``u = w (p_i − p_j)``, held by the rotation groups of ``mode``: ``ELEMENTS`` (0) its element,
-``SPOKES_AND_RIMS`` (1) every corner of its element, ``SPOKES`` (2) its two end points. So ``S_g = Σ u (x_i − x_j)ᵀ``
-is a sum of pieces: the element covariances ``S_f`` (``S_v = Σ_{f∋v} S_f`` for spokes-and-rims, ``S_f`` itself for
-elements) or, for spokes, the covariances of the edges at each corner; and ``(K R)_v = Σ_{e ∋ v} ±(Σ_{g ∋ e} R_g) u``.
+Every energy term is an element edge ``e = (i, j)`` (local pair
+:data:`~nerfedit_plugin.geometry.cotangent.ELEMENT_EDGES`) with weighted rest edge ``u = w (p_i − p_j)``, held by the
+rotation groups of ``mode``: ``ELEMENTS`` (0) its element, ``SPOKES_AND_RIMS`` (1) every corner of its element,
+``SPOKES`` (2) its two end points. So ``S_g = Σ u (x_i − x_j)ᵀ`` is a sum of pieces: the element covariances ``S_f``
+(``S_v = Σ_{f∋v} S_f`` for spokes-and-rims, ``S_f`` itself for elements) or, for spokes, the covariances of the edges
+at each corner; and ``(K R)_v = Σ_{e ∋ v} ±(Σ_{g ∋ e} R_g) u``.
 Vertex incidences are corner lists ``f·C + c`` (:func:`incidence`).
-:func:`launch` runs one parallel kernel at a time on numba's ``workqueue`` threading layer (unless
-``NUMBA_THREADING_LAYER`` is set), on as many threads as torch uses if torch is loaded.
+They run through :func:`~nerfedit_plugin.geometry.launch.launch`.
 """
 
 from __future__ import annotations
 
-import os
-import sys
-import threading
-
-import numba
 import numpy as np
 from numba import njit, prange
 
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"
-_LAUNCH = threading.Lock()
+from nerfedit_plugin.geometry.launch import launch  # noqa: F401  (re-exported: the solver launches through here)
 
 ELEMENTS, SPOKES_AND_RIMS, SPOKES = 0, 1, 2
 MODES = {"elements": ELEMENTS, "spokes_and_rims": SPOKES_AND_RIMS, "spokes": SPOKES}
-
-
-def launch(kernel, *args):
-    """Run a parallel kernel on as many threads as torch uses (all numba threads without torch), one at a time."""
-    torch = sys.modules.get("torch")
-    threads = torch.get_num_threads() if torch is not None else numba.config.NUMBA_NUM_THREADS
-    with _LAUNCH:
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-        return kernel(*args)
 
 
 @njit(cache=True)
@@ -55,6 +39,16 @@ def incidence(elements, n_vertices):
         corners[fill[v]] = k
         fill[v] += 1
     return start, corners
+
+
+@njit(cache=True, parallel=True)
+def weighted_edges(rest, elements, pairs, weights, out):
+    """``out[f, e] = w_fe (p_i − p_j)`` (F,E,3) for the element edges ``(i, j)``."""
+    for f in prange(len(elements)):
+        for e in range(len(pairs)):
+            i, j = elements[f, pairs[e, 0]], elements[f, pairs[e, 1]]
+            for c in range(3):
+                out[f, e, c] = weights[f, e] * (rest[i, c] - rest[j, c])
 
 
 @njit(cache=True, inline="always")

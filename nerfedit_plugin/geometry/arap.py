@@ -23,14 +23,9 @@ from scipy.sparse.csgraph import connected_components
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import _arap_kernel as _kernel
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
+from nerfedit_plugin.geometry.cotangent import ELEMENT_EDGES, cotangent_weights, edge_laplacian
 
 ENERGIES = ("spokes_and_rims", "spokes", "elements")
-
-#: local vertex pairs of the edges of a triangle (edge e is opposite corner e) and of a tetrahedron
-ELEMENT_EDGES = {
-    3: np.array([[1, 2], [2, 0], [0, 1]]),
-    4: np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]),
-}
 
 #: Anderson acceleration history length (Peng et al. use 5–6 for ARAP)
 ANDERSON_DEPTH = 5
@@ -53,32 +48,6 @@ class ArapResult(NamedTuple):
     iterations: int
     energies: list[float]
     converged: bool
-
-
-def cotangent_weights(vertices: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """vertices (N,3) float64, elements (F,3) triangles or (F,4) tets int64 → ``(F,E)`` float64 weights
-    ``w_ij = −vol ∇φ_i·∇φ_j`` of the element edges :data:`ELEMENT_EDGES` (E = 3 or 6; 0 on degenerate elements).
-
-    Triangles: ½ cot of the opposite angle. Tets: ⅙ l cot θ (length and dihedral angle of the opposite edge).
-    ``L = Σ w (e_i − e_j)(e_i − e_j)ᵀ`` assembled from them equals ``−igl.cotmatrix``.
-    """
-    x = vertices[elements]
-    pairs = ELEMENT_EDGES[elements.shape[1]]
-    if elements.shape[1] == 3:
-        a = x[:, pairs[:, 0]] - x  # edge e = (i, j) seen from its opposite corner e
-        b = x[:, pairs[:, 1]] - x
-        numerator = 0.5 * np.einsum("fed,fed->fe", a, b)
-        measure = np.linalg.norm(np.cross(a[:, 0], b[:, 0]), axis=1)  # 2·area
-    else:
-        e1, e2, e3 = (x[:, k] - x[:, 0] for k in (1, 2, 3))
-        n = np.stack([np.cross(e2, e3), np.cross(e3, e1), np.cross(e1, e2)], axis=1)  # det·∇φ_1..3
-        n = np.concatenate([-n.sum(1, keepdims=True), n], axis=1)
-        numerator = -np.einsum("fed,fed->fe", n[:, pairs[:, 0]], n[:, pairs[:, 1]]) / 6.0
-        measure = np.abs(np.einsum("fd,fd->f", e1, n[:, 1]))  # |det| = 6·volume
-    ok = measure > 1e-12 * measure.mean() if len(measure) else measure > 0
-    weights = np.zeros_like(numerator)
-    weights[ok] = numerator[ok] / measure[ok, None]
-    return weights
 
 
 def fit_rotations(stacked: np.ndarray) -> np.ndarray:
@@ -273,14 +242,15 @@ class ArapSolver:
 
         corners = elements.shape[1]
         pairs = ELEMENT_EDGES[corners]
-        ei, ej = elements[:, pairs[:, 0]], elements[:, pairs[:, 1]]
-        self._check_components(elements, ei, ej, constraints)
         weights = cotangent_weights(rest, elements)
+        self._vertex_start, self._vertex_corners = _kernel.incidence(elements, n)
+        lap = edge_laplacian(elements, weights, n, (self._vertex_start, self._vertex_corners))
+        self._check_components(lap, constraints)
         self._mode = _kernel.MODES[energy]
         multiplicity = {"elements": 1, "spokes_and_rims": corners, "spokes": 2}[energy]
         self._elements, self._pairs, self._weights = elements, pairs, weights
-        self._wedges = weights[:, :, None] * (self.rest[ei] - self.rest[ej])  # (F,E,3) u = w (p_i − p_j)
-        self._vertex_start, self._vertex_corners = _kernel.incidence(elements, n)
+        self._wedges = np.empty((len(elements), len(pairs), 3))  # u = w (p_i − p_j)
+        _kernel.launch(_kernel.weighted_edges, self.rest, elements, pairs, weights, self._wedges)
         self._buffers = None
         self._per_corner = energy == "spokes"  # covariance pieces: per corner, else per element
         if energy == "elements":
@@ -290,18 +260,12 @@ class ArapSolver:
             self.n_groups = n
             pieces = self._vertex_corners if self._per_corner else self._vertex_corners // corners
             self._group_start, self._group_pieces = self._vertex_start, pieces
-        lap = sp.coo_matrix(
-            (
-                np.concatenate([-weights, -weights, weights, weights], axis=None),
-                (np.concatenate([ei, ej, ei, ej], axis=None), np.concatenate([ej, ei, ei, ej], axis=None)),
-            ),
-            shape=(n, n),
-        ).tocsr()
-        self._laplacian = (multiplicity * lap).tocsr()
+        lap.data *= multiplicity
+        self._laplacian = lap
         system = self._laplacian
         self.constraints, self.constraint_weight = constraints, 0.0
         if constraints is not None:
-            referenced = np.unique(elements)
+            referenced = np.diff(lap.indptr) > 0
             self.constraint_weight = float(constraint_weight) * float(self._laplacian.diagonal()[referenced].mean())
             self._constraints_t = constraints.T.tocsr()
             system = (system + self.constraint_weight * (self._constraints_t @ constraints)).tocsr()
@@ -335,17 +299,18 @@ class ArapSolver:
         self._factor = SparseCholesky(self._system_free) if len(self.free) else None
 
     # ---- set-up helpers ------------------------------------------------------------------------
-    def _check_components(self, elements, ei, ej, constraints) -> None:
+    def _check_components(self, laplacian: sp.csr_matrix, constraints: sp.csr_matrix | None) -> None:
+        """Raise unless every connected part of the element graph (``laplacian``'s pattern) has a fixed vertex or a
+        constraint."""
         n = self.n_vertices
-        graph = sp.coo_matrix((np.ones(ei.size), (ei.ravel(), ej.ravel())), shape=(n, n))
+        graph = sp.csr_matrix((np.ones(laplacian.nnz), laplacian.indices, laplacian.indptr), shape=(n, n))
         n_comp, labels = connected_components(graph, directed=False)
         anchored = np.zeros(n_comp, dtype=bool)
         anchored[labels[self.fixed]] = True
         if constraints is not None:
             indicator = sp.csr_matrix((np.ones(n), (np.arange(n), labels)), shape=(n, n_comp))
             anchored |= np.asarray((constraints @ indicator).power(2).sum(0)).ravel() > 0
-        referenced = np.zeros(n, dtype=bool)
-        referenced[elements.ravel()] = True
+        referenced = np.diff(laplacian.indptr) > 0
         loose = referenced & ~anchored[labels]
         if loose.any():
             vertex = int(np.flatnonzero(loose)[0])
