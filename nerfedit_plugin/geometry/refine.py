@@ -16,6 +16,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit, prange
+
+from nerfedit_plugin.geometry.launch import launch
 
 #: the six edges of a tet as pairs of its corner slots
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
@@ -39,7 +42,8 @@ class Refinement:
         """points (M,3) float64 in the coarse tets ``coarse (M,)`` int64 with barycentrics ``bary (M,4)`` float64 there
         → ``(tet (M,) int64, bary (M,4) float64)`` in the refined mesh: a point of an uncut tet keeps its barycentrics
         (the tet is its own child, corners in the same order); a point of a cut tet goes to the child whose smallest
-        barycentric is largest (the one holding it, up to rounding, also on faces shared by children)."""
+        barycentric is largest (the one holding it, up to rounding, also on faces shared by children; compiled: no
+        per-point temporaries at millions of points)."""
         points, coarse = np.asarray(points, dtype=np.float64), np.asarray(coarse, dtype=np.int64)
         order = np.argsort(self.parent, kind="stable")
         first = np.searchsorted(self.parent[order], coarse)
@@ -47,17 +51,58 @@ class Refinement:
         tet = order[first]
         bary = np.array(bary, dtype=np.float64)
         split = np.flatnonzero(count > 1)
-        if len(split):
-            slots = np.minimum(np.arange(count.max()), count[split, None] - 1)  # pad with the last child
-            children = order[first[split, None] + slots]  # (S,C)
-            corners = self.vertices[self.tets[children]]  # (S,C,4,3)
-            edges = (corners[:, :, 1:] - corners[:, :, :1]).transpose(0, 1, 3, 2)
-            local = np.linalg.solve(edges, (points[split, None] - corners[:, :, 0])[..., None])[..., 0]
-            inside = np.concatenate([1.0 - local.sum(-1, keepdims=True), local], axis=-1)
-            best = inside.min(-1).argmax(-1)
-            rows = np.arange(len(split))
-            tet[split], bary[split] = children[rows, best], inside[rows, best]
+        launch(_locate_in_children, points, split, first, count, order, self.vertices, self.tets, tet, bary)
         return tet, bary
+
+
+@njit(cache=True, parallel=True)
+def _locate_in_children(points, split, first, count, order, vertices, tets, tet, bary):
+    """For each point ``split[k]`` of a cut tet: its children ``order[first : first + count]``, the barycentrics in
+    each (Cramer's rule), and the child whose smallest barycentric is largest into ``tet``, ``bary``."""
+    for k in prange(len(split)):
+        m = split[k]
+        best = -np.inf
+        for c in range(count[m]):
+            child = order[first[m] + c]
+            l0, l1, l2, l3 = _barycentrics(vertices, tets[child], points[m])
+            smallest = min(min(l0, l1), min(l2, l3))
+            if smallest > best:
+                best = smallest
+                tet[m] = child
+                bary[m, 0], bary[m, 1], bary[m, 2], bary[m, 3] = l0, l1, l2, l3
+
+
+@njit(cache=True, inline="always")
+def _barycentrics(vertices, corners, point):
+    """The barycentrics of ``point`` in the tet ``corners (4,)`` by Cramer's rule, without temporaries."""
+    a = corners[0]
+    ux, uy, uz = (
+        vertices[corners[1], 0] - vertices[a, 0],
+        vertices[corners[1], 1] - vertices[a, 1],
+        vertices[corners[1], 2] - vertices[a, 2],
+    )
+    vx, vy, vz = (
+        vertices[corners[2], 0] - vertices[a, 0],
+        vertices[corners[2], 1] - vertices[a, 1],
+        vertices[corners[2], 2] - vertices[a, 2],
+    )
+    wx, wy, wz = (
+        vertices[corners[3], 0] - vertices[a, 0],
+        vertices[corners[3], 1] - vertices[a, 1],
+        vertices[corners[3], 2] - vertices[a, 2],
+    )
+    px, py, pz = point[0] - vertices[a, 0], point[1] - vertices[a, 1], point[2] - vertices[a, 2]
+    det = _triple(ux, uy, uz, vx, vy, vz, wx, wy, wz)
+    l1 = _triple(px, py, pz, vx, vy, vz, wx, wy, wz) / det
+    l2 = _triple(ux, uy, uz, px, py, pz, wx, wy, wz) / det
+    l3 = _triple(ux, uy, uz, vx, vy, vz, px, py, pz) / det
+    return 1.0 - (l1 + l2 + l3), l1, l2, l3
+
+
+@njit(cache=True, inline="always")
+def _triple(ux, uy, uz, vx, vy, vz, wx, wy, wz):
+    """``u · (v × w)``."""
+    return ux * (vy * wz - vz * wy) + uy * (vz * wx - vx * wz) + uz * (vx * wy - vy * wx)
 
 
 class _Split(NamedTuple):
