@@ -149,7 +149,7 @@ class _Lbfgs:
 
     def push(
         self, x: tuple[np.ndarray, np.ndarray], h: tuple[np.ndarray, np.ndarray], p: tuple[np.ndarray, np.ndarray]
-    ):
+    ) -> None:
         """Add the pair ``s = x⁺ − x``, ``y = h⁺ − h`` (and ``z = A⁻¹y = p⁺ − p``), each given as ``(new, old)``,
         unless its curvature ``sᵀy`` is not clearly positive (E is not convex: such a pair would make the inverse
         Hessian indefinite)."""
