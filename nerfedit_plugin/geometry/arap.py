@@ -7,8 +7,9 @@ Fixed vertices are eliminated exactly; local/global iterations share one prefact
 accelerated under an energy guard (the energy never increases): Anderson acceleration, or L-BFGS on E with the
 prefactored system as initial inverse Hessian (``method``). Covariances, rotations, energy and the
 global step's right-hand side come from the elements in compiled kernels (:mod:`._arap_kernel`: no ``(N, 3G)``
-matrix; spokes-and-rims pools per-triangle covariances ``S_v = Σ_{f∋v} S_f``). The derivation and the solver's
-choices: docs/method.md, "Surface editing: ARAP".
+matrix; spokes-and-rims pools per-triangle covariances ``S_v = Σ_{f∋v} S_f``), within a solve only for the groups it
+can change (those holding an edge of an element with a free vertex). The derivation and the solver's choices:
+docs/method.md, "Surface editing: ARAP".
 """
 
 from __future__ import annotations
