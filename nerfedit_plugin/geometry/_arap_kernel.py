@@ -7,7 +7,7 @@ rotation groups of ``mode``: ``ELEMENTS`` (0) its element, ``SPOKES_AND_RIMS`` (
 ``SPOKES`` (2) its two end points. So ``S_g = Σ u (x_i − x_j)ᵀ`` is a sum of pieces: the element covariances ``S_f``
 (``S_v = Σ_{f∋v} S_f`` for spokes-and-rims, ``S_f`` itself for elements) or, for spokes, the covariances of the edges
 at each corner; and ``(K R)_v = Σ_{e ∋ v} ±(Σ_{g ∋ e} R_g) u``.
-Vertex incidences are corner lists ``f·C + c`` (:func:`incidence`).
+Vertex incidences are corner lists ``f·C + c`` (:func:`~nerfedit_plugin.geometry.cotangent.incidence`).
 They run through :func:`~nerfedit_plugin.geometry.launch.launch`.
 """
 
@@ -16,29 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from nerfedit_plugin.geometry.launch import launch  # noqa: F401  (re-exported: the solver launches through here)
-
 ELEMENTS, SPOKES_AND_RIMS, SPOKES = 0, 1, 2
 MODES = {"elements": ELEMENTS, "spokes_and_rims": SPOKES_AND_RIMS, "spokes": SPOKES}
-
-
-@njit(cache=True)
-def incidence(elements, n_vertices):
-    """elements (F,C) int64 → ``(start (N+1,), corners (F·C,))`` int64: the corners ``f·C + c`` at each vertex,
-    ascending (a counting sort)."""
-    flat = elements.ravel()
-    start = np.zeros(n_vertices + 1, dtype=np.int64)
-    for k in range(len(flat)):
-        start[flat[k] + 1] += 1
-    for v in range(n_vertices):
-        start[v + 1] += start[v]
-    fill = start[:-1].copy()
-    corners = np.empty(len(flat), dtype=np.int64)
-    for k in range(len(flat)):
-        v = flat[k]
-        corners[fill[v]] = k
-        fill[v] += 1
-    return start, corners
 
 
 @njit(cache=True, parallel=True)

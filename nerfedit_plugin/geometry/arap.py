@@ -24,7 +24,8 @@ from scipy.sparse.csgraph import connected_components
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import _arap_kernel as _kernel
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
-from nerfedit_plugin.geometry.cotangent import ELEMENT_EDGES, cotangent_weights, edge_laplacian
+from nerfedit_plugin.geometry.cotangent import ELEMENT_EDGES, cotangent_weights, edge_laplacian, incidence
+from nerfedit_plugin.geometry.launch import launch
 
 ENERGIES = ("spokes_and_rims", "spokes", "elements")
 
@@ -72,7 +73,7 @@ def _rotations(covariances: np.ndarray, rotations: np.ndarray | None = None) -> 
     ``rotations`` if given."""
     rotations = np.empty_like(covariances) if rotations is None else rotations
     ill = np.empty(len(covariances), dtype=bool)
-    _kernel.launch(_kernel.fit_rotations, covariances, rotations, ill)
+    launch(_kernel.fit_rotations, covariances, rotations, ill)
     _refit_ill(covariances, rotations, np.flatnonzero(ill))
     return rotations
 
@@ -155,7 +156,7 @@ class _Lbfgs:
         unless its curvature ``sᵀy`` is not clearly positive (E is not convex: such a pair would make the inverse
         Hessian indefinite)."""
         (x1, x0), (h1, h0), (p1, p0) = ((a.reshape(-1), b.reshape(-1)) for a, b in (x, h, p))
-        curvature, ss, yy = _kernel.launch(_kernel.difference_dots, x1, x0, h1, h0)
+        curvature, ss, yy = launch(_kernel.difference_dots, x1, x0, h1, h0)
         if not curvature > 1e-12 * np.sqrt(ss * yy):
             return
         slot = self.count % len(self.rho)
@@ -173,17 +174,15 @@ class _Lbfgs:
         slots = np.array([(self.count - 1 - k) % len(self.rho) for k in range(m)])  # newest first
         alphas, rho, s, y = np.empty(m), self.rho, self.s, self.y
         q = h.reshape(-1).copy()
-        alphas[0] = rho[slots[0]] * _flat_dot(s[slots[0]], q)
+        alphas[0] = rho[slots[0]] * _dot(s[slots[0]], q)
         for k in range(m - 1):  # q ← q − α_k y_k, α_{k+1} = ρ s_{k+1}ᵀq
-            alphas[k + 1] = rho[slots[k + 1]] * _kernel.launch(
-                _kernel.axpy_dot, q, alphas[k], y[slots[k]], s[slots[k + 1]]
-            )
-        gamma = 1.0 / (rho[slots[0]] * _flat_dot(y[slots[0]], self.z[slots[0]]))  # γ = sᵀy / yᵀA⁻¹y
+            alphas[k + 1] = rho[slots[k + 1]] * launch(_kernel.axpy_dot, q, alphas[k], y[slots[k]], s[slots[k + 1]])
+        gamma = 1.0 / (rho[slots[0]] * _dot(y[slots[0]], self.z[slots[0]]))  # γ = sᵀy / yᵀA⁻¹y
         r = np.empty_like(q)
-        _kernel.launch(_kernel.combine, solved.reshape(-1), gamma, alphas, self.z, slots, r)  # r = γ A⁻¹q
-        beta = rho[slots[-1]] * _flat_dot(y[slots[-1]], r)
+        launch(_kernel.combine, solved.reshape(-1), gamma, alphas, self.z, slots, r)  # r = γ A⁻¹q
+        beta = rho[slots[-1]] * _dot(y[slots[-1]], r)
         for k in reversed(range(m)):  # r ← r + (α_k − β_k) s_k, β_{k−1} = ρ y_{k−1}ᵀr (the last dot unused)
-            dot = _kernel.launch(_kernel.axpy_dot, r, beta - alphas[k], s[slots[k]], y[slots[max(k - 1, 0)]])
+            dot = launch(_kernel.axpy_dot, r, beta - alphas[k], s[slots[k]], y[slots[max(k - 1, 0)]])
             beta = rho[slots[k - 1]] * dot
         return r.reshape(self.shape)
 
@@ -244,14 +243,14 @@ class ArapSolver:
         corners = elements.shape[1]
         pairs = ELEMENT_EDGES[corners]
         weights = cotangent_weights(rest, elements)
-        self._vertex_start, self._vertex_corners = _kernel.incidence(elements, n)
+        self._vertex_start, self._vertex_corners = incidence(elements, n)
         lap = edge_laplacian(elements, weights, n, (self._vertex_start, self._vertex_corners))
         self._check_components(lap, constraints)
         self._mode = _kernel.MODES[energy]
         multiplicity = {"elements": 1, "spokes_and_rims": corners, "spokes": 2}[energy]
         self._elements, self._pairs, self._weights = elements, pairs, weights
         self._wedges = np.empty((len(elements), len(pairs), 3))  # u = w (p_i − p_j)
-        _kernel.launch(_kernel.weighted_edges, self.rest, elements, pairs, weights, self._wedges)
+        launch(_kernel.weighted_edges, self.rest, elements, pairs, weights, self._wedges)
         self._buffers = None
         self._per_corner = energy == "spokes"  # covariance pieces: per corner, else per element
         if energy == "elements":
@@ -335,10 +334,10 @@ class ArapSolver:
         pieces, covariances, traces, ill, _ = self._scratch()
         pieced, groups = self._active if active else self._everything
         rotations = np.empty((self.n_groups, 3, 3))
-        _kernel.launch(
+        launch(
             _kernel.piece_covariances, x, self._elements, self._pairs, self._wedges, self._per_corner, pieced, pieces
         )
-        _kernel.launch(
+        launch(
             _kernel.local_step, pieces, self._group_start, self._group_pieces, groups, covariances, rotations, traces,
             ill,
         )  # fmt: skip
@@ -351,7 +350,7 @@ class ArapSolver:
             if active:  # the sum needs every rotation
                 return self._local(x, targets)
             terms = np.empty(len(self._elements))  # rare: not kept
-            _kernel.launch(
+            launch(
                 _kernel.residual_energy, x, self.rest, self._elements, self._pairs, self._weights, rotations,
                 self._mode, terms,
             )  # fmt: skip
@@ -375,10 +374,10 @@ class ArapSolver:
         """``(K R)`` (free rows, 3): the global step's right-hand side ``Σ ±R_g w (p_i − p_j)`` at each free vertex
         (reads the rotations of the groups :meth:`_local` refits with ``active``)."""
         turned, out = self._scratch()[4], np.empty((len(self.free), 3))
-        _kernel.launch(
+        launch(
             _kernel.rotate_edges, self._elements, self._pairs, self._wedges, rotations, self._mode, self._moving, turned
         )
-        _kernel.launch(
+        launch(
             _kernel.gather_edges, self._elements, self._pairs, turned, self.free, self._vertex_start,
             self._vertex_corners, out,
         )  # fmt: skip
@@ -529,14 +528,10 @@ class ArapSolver:
         return x, False
 
 
-def _flat_dot(a: np.ndarray, b: np.ndarray) -> float:
-    """``aᵀb`` of flat arrays (einsum, as :func:`_dot`)."""
-    return float(np.einsum("i,i->", a, b))
-
-
 def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """``Σ a ⊙ b`` (einsum: BLAS ``ddot`` spends its time in thread start-up at these sizes)."""
-    return float(np.einsum("ij,ij->", a, b))
+    """``Σ a ⊙ b`` of two contiguous arrays of one shape (einsum: BLAS ``ddot`` spends its time in thread start-up at
+    these sizes)."""
+    return float(np.einsum("i,i->", a.reshape(-1), b.reshape(-1)))
 
 
 def _converged(energies: list[float], tolerance: float, floor: float) -> bool:

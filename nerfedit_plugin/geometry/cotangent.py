@@ -9,7 +9,6 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit, prange
 
-from nerfedit_plugin.geometry._arap_kernel import incidence
 from nerfedit_plugin.geometry.launch import launch
 
 #: local vertex pairs of the edges of a triangle (edge e is opposite corner e) and of a tetrahedron
@@ -42,7 +41,7 @@ def edge_laplacian(
     """elements (F,C) int64, weights (F,E) float64 (one per :data:`ELEMENT_EDGES` edge) → ``L (N,N)`` CSR float64,
     ``L = Σ_f Σ_e w_fe (e_i − e_j)(e_i − e_j)ᵀ``: an entry for every element edge and every referenced vertex's
     diagonal (zeros kept; rows of unreferenced vertices empty), sorted column indices. ``corners``: the elements'
-    :func:`~nerfedit_plugin.geometry._arap_kernel.incidence`, if known."""
+    :func:`incidence`, if known."""
     elements = np.ascontiguousarray(elements, dtype=np.int64)
     pairs = ELEMENT_EDGES[elements.shape[1]]
     start, corners = incidence(elements, n_vertices) if corners is None else corners
@@ -53,6 +52,25 @@ def edge_laplacian(
     indices, data = np.empty(indptr[-1], dtype=np.int64), np.empty(indptr[-1])
     launch(_rows, elements, pairs, np.ascontiguousarray(weights), start, corners, indptr, indices, data)
     return sp.csr_matrix((data, indices, indptr), shape=(n_vertices, n_vertices))
+
+
+@njit(cache=True)
+def incidence(elements, n_vertices):
+    """elements (F,C) int64 → ``(start (N+1,), corners (F·C,))`` int64: the corners ``f·C + c`` at each vertex,
+    ascending (a counting sort)."""
+    flat = elements.ravel()
+    start = np.zeros(n_vertices + 1, dtype=np.int64)
+    for k in range(len(flat)):
+        start[flat[k] + 1] += 1
+    for v in range(n_vertices):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    corners = np.empty(len(flat), dtype=np.int64)
+    for k in range(len(flat)):
+        v = flat[k]
+        corners[fill[v]] = k
+        fill[v] += 1
+    return start, corners
 
 
 @njit(cache=True, parallel=True)
