@@ -152,6 +152,8 @@ class Lift:
         ``max_iterations`` units per frame and round for the ARAP lifts, else 1; a lift that needs fewer rounds
         jumps to the end)."""
         self.rest_normals = face_normals(rest.vertices, rest.faces)
+        self.scale = rest.bbox_diagonal
+        """The rest surface's bbox diagonal: the unit of the reports' distances."""
         self.surface = np.flatnonzero(rest.referenced())
         """The surface vertices (those of a face): the constraints and residuals of the lift (a stray vertex,
         which no deformer is bound to move with its neighbours, would pull the proxy apart)."""
@@ -259,7 +261,7 @@ class Lift:
     def misfit(self, deformed: np.ndarray, surface: np.ndarray) -> np.ndarray:
         """deformed proxy (N,3), surface frame (V,3) float64 → (S,) float64: ``|A t' − v'|`` at each surface vertex
         (``self.surface``), relative to the rest bbox diagonal."""
-        return np.linalg.norm(self.embedding @ deformed - surface[self.surface], axis=1) / self.rest.bbox_diagonal
+        return np.linalg.norm(self.embedding @ deformed - surface[self.surface], axis=1) / self.scale
 
     def residuals(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
         """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (S,) float64: each surface vertex's worst
@@ -352,7 +354,7 @@ class Lift:
         missed = surface[self.surface[self.misfit(deformed, surface) > self.config.residual_target]]
         if len(missed) == 0:  # a residual that is not a number: nothing to look at
             return report
-        radius = CROSSING_RADIUS * self.rest.bbox_diagonal
+        radius = CROSSING_RADIUS * self.scale
         candidates = np.flatnonzero(
             np.all((surface >= missed.min(0) - radius) & (surface <= missed.max(0) + radius), axis=1)
         )

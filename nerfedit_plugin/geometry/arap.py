@@ -26,6 +26,7 @@ from nerfedit_plugin.geometry import _arap_kernel as _kernel
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
 from nerfedit_plugin.geometry.cotangent import ELEMENT_EDGES, cotangent_weights, edge_laplacian, incidence
 from nerfedit_plugin.geometry.launch import launch
+from nerfedit_plugin.geometry.soft_constraints import Expansion, SoftConstraints
 
 ENERGIES = ("spokes_and_rims", "spokes", "elements")
 
@@ -267,8 +268,8 @@ class ArapSolver:
         if constraints is not None:
             referenced = np.diff(lap.indptr) > 0
             self.constraint_weight = float(constraint_weight) * float(self._laplacian.diagonal()[referenced].mean())
-            self._constraints_t = constraints.T.tocsr()
-            system = (system + self.constraint_weight * (self._constraints_t @ constraints)).tocsr()
+            self._soft = SoftConstraints(constraints)
+            system = (system + self.constraint_weight * self._soft.gram).tocsr()
         self._rest_energy = float(np.sum(self.rest * (self._laplacian @ self.rest)))
 
         is_free = np.zeros(n, dtype=bool)
@@ -322,8 +323,9 @@ class ArapSolver:
             )
 
     # ---- iteration pieces ----------------------------------------------------------------------
-    def _local(self, x: np.ndarray, targets: np.ndarray | None, active: bool = False) -> tuple[np.ndarray, float]:
-        """Best rotations ``R_g (G,3,3)`` for centred positions ``x`` and the energy ``E(x)`` with them.
+    def _local(self, x: np.ndarray, penalty: Expansion | None, active: bool = False) -> tuple[np.ndarray, float]:
+        """Best rotations ``R_g (G,3,3)`` for centred positions ``x`` and the energy ``E(x)`` with them (plus
+        ``w_c ‖C x − T‖²`` from ``penalty``, the solve's constraint targets, if any).
 
         ``active``: refit only the groups a solve can change (holding an edge of an element with a free vertex);
         the others keep the traces ``tr(R_g S_g)`` of the last full call, which must have had the same fixed
@@ -348,15 +350,15 @@ class ArapSolver:
         value = float(np.sum(x * (self._laplacian @ x))) - 2.0 * float(np.sum(traces)) + self._rest_energy
         if abs(value) < RESIDUAL_BELOW * self._rest_energy:  # few digits left after cancellation: sum the residuals
             if active:  # the sum needs every rotation
-                return self._local(x, targets)
+                return self._local(x, penalty)
             terms = np.empty(len(self._elements))  # rare: not kept
             launch(
                 _kernel.residual_energy, x, self.rest, self._elements, self._pairs, self._weights, rotations,
                 self._mode, terms,
             )  # fmt: skip
             value = float(np.sum(terms))
-        if targets is not None:
-            value += self.constraint_weight * float(np.sum((self.constraints @ x - targets) ** 2))
+        if penalty is not None:
+            value += self.constraint_weight * penalty.value(x)
         return rotations, value
 
     def _scratch(self) -> tuple[np.ndarray, ...]:
@@ -383,23 +385,25 @@ class ArapSolver:
         )  # fmt: skip
         return out
 
-    def _centred_targets(self, targets: np.ndarray | None) -> np.ndarray | None:
+    def _penalty(self, x: np.ndarray, targets: np.ndarray | None) -> Expansion | None:
+        """The constraint penalty for ``targets (m,3)`` (default ``C·rest``) expanded about the centred positions
+        ``x`` (N,3); None without constraints."""
         if self.constraints is None:
             return None
         if targets is None:
-            return self.constraints @ self.rest
+            return self._soft.expand(x, self.constraints @ self.rest)  # centred rest, centred targets
         targets = np.asarray(targets, dtype=np.float64)
         if targets.shape != (self.constraints.shape[0], 3) or not np.isfinite(targets).all():
             expected = (self.constraints.shape[0], 3)
             raise NerfEditError(f"ARAP: constraint_targets must be finite {expected}, got {targets.shape}")
-        return targets - np.asarray(self.constraints.sum(1)).reshape(-1, 1) * self.origin
+        return self._soft.expand(x, targets, self.origin)
 
     # ---- public API ------------------------------------------------------------------------------
     def energy(self, positions: np.ndarray, constraint_targets: np.ndarray | None = None) -> float:
         """positions (N,3) float64, constraint_targets (m,3) float64 or None → float: ``E(X)`` with the optimal
         rotations, plus ``w_c ‖C X − T‖²`` when there are constraints (``T`` defaults to ``C·rest``)."""
         x = np.asarray(positions, dtype=np.float64) - self.origin
-        return self._local(x, self._centred_targets(constraint_targets))[1]
+        return self._local(x, self._penalty(x, constraint_targets))[1]
 
     def solve(
         self,
@@ -441,12 +445,12 @@ class ArapSolver:
         else:
             fixed_positions = self._rest_fixed
         x[self.fixed] = fixed_positions - self.origin
-        targets = self._centred_targets(constraint_targets)
+        penalty = self._penalty(x, constraint_targets)
         rhs = -(self._system_known @ x[self.known])
-        if targets is not None:
-            rhs += self.constraint_weight * (self._constraints_t @ targets)[self.free]
+        if penalty is not None:
+            rhs += self.constraint_weight * penalty.pulled_targets[self.free]
 
-        rotations, energy = self._local(x, targets)
+        rotations, energy = self._local(x, penalty)
         energies = [energy]
         if callback is not None:
             callback(0, energy)
@@ -454,7 +458,7 @@ class ArapSolver:
         if self._factor is not None and abs(energy) > floor:
             iterate = self._lbfgs if method == "lbfgs" else self._anderson
             x, converged = iterate(
-                x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, anderson, callback
+                x, rotations, rhs, penalty, energies, max_iterations, tolerance, floor, anderson, callback
             )
         else:
             converged = True
@@ -464,7 +468,7 @@ class ArapSolver:
 
     # ---- minimisers: from centred x (fixed rows set) and its rotations, append to energies (calling callback, if
     # any, with each), return (x, converged)
-    def _anderson(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, depth, callback):
+    def _anderson(self, x, rotations, rhs, penalty, energies, max_iterations, tolerance, floor, depth, callback):
         """Local/global iterations Anderson-accelerated (history ``depth``) under the energy guard."""
         energy, converged = energies[-1], False
         accelerator = _Anderson(depth, 3 * len(self.free))
@@ -472,10 +476,10 @@ class ArapSolver:
             plain = self._factor.solve(self._rotated_edges(rotations) + rhs)
             trial = x.copy()
             trial[self.free] = accelerator(plain.ravel(), (plain - x[self.free]).ravel()).reshape(-1, 3)
-            trial_rotations, trial_energy = self._local(trial, targets, active=True)
+            trial_rotations, trial_energy = self._local(trial, penalty, active=True)
             if accelerator.extrapolated and not trial_energy < energy:  # no gain: take the plain local/global iterate
                 trial[self.free] = plain
-                trial_rotations, trial_energy = self._local(trial, targets, active=True)
+                trial_rotations, trial_energy = self._local(trial, penalty, active=True)
             if trial_energy > energy:  # only rounding makes a plain step increase E: we are at the minimum
                 return x, True
             x, rotations, energy = trial, trial_rotations, trial_energy
@@ -485,7 +489,7 @@ class ArapSolver:
             converged = _converged(energies, tolerance, floor)
         return x, converged
 
-    def _lbfgs(self, x, rotations, rhs, targets, energies, max_iterations, tolerance, floor, _depth, callback):
+    def _lbfgs(self, x, rotations, rhs, penalty, energies, max_iterations, tolerance, floor, _depth, callback):
         """L-BFGS on E over the free vertices. The half gradient ``h = A x − (K R(x) + b)`` (R(x): the local
         step's rotations, optimal, so the rotations' own variation drops out) and ``p = A⁻¹h`` give the plain
         local/global iterate ``x − p``; the L-BFGS step ``x − α H h`` is tried at α = 1, ½, ¼, ⅛ (Armijo), else
@@ -505,14 +509,14 @@ class ArapSolver:
             for attempt in range(LINE_SEARCH_STEPS if history.count else 1):
                 alpha = 0.5**attempt
                 trial[free] = xf - alpha * r
-                trial_rotations, trial_energy = self._local(trial, targets, active=True)
+                trial_rotations, trial_energy = self._local(trial, penalty, active=True)
                 if trial_energy <= energy - 2.0 * ARMIJO * alpha * slope:
                     break
             else:
                 if history.count:  # the plain local/global step
                     history.reset()
                     trial[free] = xf - p
-                    trial_rotations, trial_energy = self._local(trial, targets, active=True)
+                    trial_rotations, trial_energy = self._local(trial, penalty, active=True)
             if trial_energy > energy:  # only rounding makes a plain step increase E: we are at the minimum
                 return x, True
             new_xf = trial[free]

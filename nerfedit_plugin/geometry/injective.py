@@ -40,6 +40,7 @@ from numba import njit
 
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.cholesky import SparseCholesky
+from nerfedit_plugin.geometry.soft_constraints import Expansion, SoftConstraints
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 
 #: a tet's 6 edges (corner pairs)
@@ -335,7 +336,8 @@ class InjectiveSolver:
         self.constraint_weight = float(constraint_weight) * float(diagonal[np.unique(tets)].mean())
         # Newton matrix as 3×3 blocks per vertex pair (BSR): every tet's 16 corner pairs, the pairs of CᵀC and the
         # diagonal; each iteration sums the tets' blocks into their slots (compiled, _newton_kernel)
-        gram = (self.constraints.T @ self.constraints).tocsr()
+        self._soft = SoftConstraints(self.constraints)
+        gram = self._soft.gram
         gram_coo = gram.tocoo()
         pairs_i = np.concatenate([np.repeat(tets, 4, axis=1).ravel(), gram_coo.row, np.arange(n)])
         pairs_j = np.concatenate([np.tile(tets, (1, 4)).ravel(), gram_coo.col, np.arange(n)])
@@ -369,20 +371,24 @@ class InjectiveSolver:
 
     def energy(self, positions: np.ndarray, targets: np.ndarray) -> float:
         """positions (N,3) float64, targets (m,3) float64 → E (``inf`` if a tet is flat or inverted)."""
+        positions = np.ascontiguousarray(positions, dtype=np.float64)
+        return self._energy(positions, self._soft.expand(positions, targets))
+
+    def _energy(self, positions: np.ndarray, penalty: Expansion) -> float:
+        """E at positions (N,3) float64 with the constraint targets bound in ``penalty``."""
         distortion = _distortion(np.ascontiguousarray(positions), self.tets, self.gradient_map, self.volumes)
         if not np.isfinite(distortion):
             return np.inf
-        penalty = self.constraints @ positions - targets
-        return distortion + self.constraint_weight * float(np.sum(penalty * penalty))
+        return distortion + self.constraint_weight * penalty.value(positions)
 
-    def _newton_system(self, positions: np.ndarray, targets: np.ndarray) -> tuple[sp.bsr_matrix, np.ndarray]:
+    def _newton_system(self, positions: np.ndarray, penalty: Expansion) -> tuple[sp.bsr_matrix, np.ndarray]:
         """The projected Newton matrix (3N,3N) and the gradient (3N,) at ``positions``."""
         gradient = np.zeros((self.n_vertices, 3))
         summed = self._constant.copy()
         x = np.ascontiguousarray(positions)
         scale, floor = 0.25 * self.volumes, 2.0 * EIGEN_FLOOR
         _newton_kernel(x, self.tets, self.gradient_map, scale, self._slots, floor, summed, gradient)
-        gradient += 2.0 * self.constraint_weight * (self.constraints.T @ (self.constraints @ positions - targets))
+        gradient += 2.0 * self.constraint_weight * penalty.gradient(positions)
         diagonal = summed[self._diagonal_blocks]
         ridge = RIDGE * np.einsum("kii->", diagonal) / (3 * len(diagonal))
         summed[self._diagonal_blocks] += ridge * np.eye(3)
@@ -413,14 +419,14 @@ class InjectiveSolver:
             direction = z + (rz / previous) * direction
         return out
 
-    def _line_search(self, x, step, targets, energy, slope) -> tuple[float, float]:
+    def _line_search(self, x, step, penalty, energy, slope) -> tuple[float, float]:
         """Backtracking from ``SAFE_STEP ×`` the maximal flip-free step along ``step`` (at most 1) → (α, E(x + α
         step)) of the first α meeting the Armijo condition for ``slope`` (the directional derivative), or (0, E) if
         :data:`MAX_HALVINGS` halvings found none."""
         safe = _first_flattening(_relative_motions(x, step, self.tets, 1.0 / SAFE_STEP))
         alpha = min(1.0, SAFE_STEP * safe)
         for _ in range(MAX_HALVINGS):
-            trial_energy = self.energy(x + alpha * step, targets)
+            trial_energy = self._energy(x + alpha * step, penalty)
             if trial_energy <= energy + ARMIJO * alpha * slope:
                 return alpha, trial_energy
             alpha *= 0.5
@@ -440,20 +446,19 @@ class InjectiveSolver:
         energy decrease of an iteration is ≤ ``tolerance``, after ``max_iterations``, or when ``stop(positions)``
         (optional) returns True after an iteration."""
         x = np.array(initial, dtype=np.float64) - self.origin
-        row_sums = np.asarray(self.constraints.sum(1)).reshape(-1, 1)
-        targets = np.asarray(targets, dtype=np.float64) - row_sums * self.origin
-        energy = self.energy(x, targets)
+        penalty = self._soft.expand(x, targets, self.origin)
+        energy = self._energy(x, penalty)
         if not np.isfinite(energy):
             raise NerfEditError("injective solver: the initial positions have flat or inverted tets")
         energies, converged, exact = [energy], False, False
         while len(energies) <= max_iterations and not converged:
-            matrix, gradient = self._newton_system(x, targets)
+            matrix, gradient = self._newton_system(x, penalty)
             step = -self._direction(matrix, gradient, exact).reshape(-1, 3)
             slope = float(gradient @ step.ravel())
             if slope >= 0:  # not a descent direction at this precision: at the minimum (checked with the exact step)
                 converged, exact = exact, True
                 continue
-            alpha, trial_energy = self._line_search(x, step, targets, energy, slope)
+            alpha, trial_energy = self._line_search(x, step, penalty, energy, slope)
             if alpha == 0:  # no decrease along the inexact step: try the exact one; none along that: at the minimum
                 converged, exact = exact, True
                 continue
