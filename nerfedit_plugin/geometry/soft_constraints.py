@@ -48,9 +48,7 @@ class Expansion:
     """``‖C (X + origin) − T‖²`` and ``Cᵀ(C (X + origin) − T)`` for one target set ``T``, expanded about ``X₀``
     (module docstring)."""
 
-    def __init__(
-        self, constraints: SoftConstraints, base: np.ndarray, targets: np.ndarray, origin: np.ndarray
-    ) -> None:
+    def __init__(self, constraints: SoftConstraints, base: np.ndarray, targets: np.ndarray, origin: np.ndarray) -> None:
         self._constraints, self._targets = constraints, np.ascontiguousarray(targets, dtype=np.float64)
         self._base = np.array(base, dtype=np.float64)
         self._origin = np.asarray(origin, dtype=np.float64)
