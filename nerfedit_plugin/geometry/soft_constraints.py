@@ -25,7 +25,7 @@ RELATIVE_FLOOR = 1e-8
 
 
 @njit(cache=True)
-def _pull(indptr, indices, data, base, origin, targets, pulled):  # pragma: no cover - compiled
+def _pull(indptr, indices, data, base, origin, targets, pulled):
     """``r = T − C (base + origin)`` row by row: ``pulled += Cᵀ r`` (N,3); returns ``‖r‖²``."""
     total = 0.0
     for row in range(len(indptr) - 1):
