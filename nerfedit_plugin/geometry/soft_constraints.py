@@ -8,10 +8,11 @@ few thousand proxy vertices ``N``; a solver evaluates the penalty and its gradie
 ``‖C X − T‖² = tr(Dᵀ G D) − 2 tr(Dᵀ Cᵀr₀) + ‖r₀‖²``,  ``Cᵀ(C X − T) = G D − Cᵀr₀``,  ``D = X − X₀``,
 
 an identity, so every later call costs ``O(nnz G)`` instead of ``O(nnz C)``; ``r₀``'s one pass over the rows is
-compiled (:func:`_pull`: no ``(m,3)`` temporaries). Rounding is relative to ``‖r₀‖²`` (the start's misfit, not the
-targets' magnitude); where the value falls below :data:`RELATIVE_FLOOR` × ``‖r₀‖²`` (digits lost to cancellation) it
-is summed over the rows instead. Solvers that centre their positions pass the centre as ``origin``: the targets stay
-as given, ``C (X + origin) − T``.
+compiled (:func:`_pull`: no ``(m,3)`` temporaries). Rounding is relative to ``‖r₀‖²`` (the base's misfit, not the
+targets' magnitude); where a value falls below :data:`REBASE_BELOW` × ``‖r₀‖²`` the expansion moves its base to that
+point (one more pass over the rows), so a value keeps at least ``ε / REBASE_BELOW`` relative precision however far
+the misfit falls. Solvers that centre their positions pass the centre as ``origin``: the targets stay as given,
+``C (X + origin) − T``.
 """
 
 from __future__ import annotations
@@ -20,8 +21,10 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
-#: value / ‖r₀‖² below which the expansion has lost too many digits and the rows are summed instead
-RELATIVE_FLOOR = 1e-8
+from nerfedit_plugin.errors import NerfEditError
+
+#: value / ‖r₀‖² below which the expansion moves its base to the point evaluated (digits lost to cancellation)
+REBASE_BELOW = 1e-4
 
 
 @njit(cache=True)
@@ -46,17 +49,27 @@ def _pull(indptr, indices, data, base, origin, targets, pulled):
 
 class Expansion:
     """``‖C (X + origin) − T‖²`` and ``Cᵀ(C (X + origin) − T)`` for one target set ``T``, expanded about ``X₀``
-    (module docstring)."""
+    (module docstring; :meth:`value` may move ``X₀``, which changes no result beyond rounding). Wrong shapes of the
+    targets (m,3), positions (N,3) or origin (3,) are a NerfEditError."""
 
     def __init__(self, constraints: SoftConstraints, base: np.ndarray, targets: np.ndarray, origin: np.ndarray) -> None:
-        self._constraints, self._targets = constraints, np.ascontiguousarray(targets, dtype=np.float64)
+        m, n = constraints.matrix.shape
+        targets, base = np.ascontiguousarray(targets, dtype=np.float64), np.array(base, dtype=np.float64)
+        origin = np.asarray(origin, dtype=np.float64)
+        for name, array, shape in (("targets", targets, (m, 3)), ("positions", base, (n, 3)), ("origin", origin, (3,))):
+            if array.shape != shape:
+                raise NerfEditError(f"soft constraints: {name} must have shape {shape}, got {array.shape}")
+        self._constraints, self._targets, self._origin = constraints, targets, origin
+        self._rebase(base)
+
+    def _rebase(self, base: np.ndarray) -> None:
+        """Expand about ``base`` (N,3): ``Cᵀr₀`` and ``‖r₀‖²`` in one pass over the rows."""
+        matrix = self._constraints.matrix
         self._base = np.array(base, dtype=np.float64)
-        self._origin = np.asarray(origin, dtype=np.float64)
-        matrix = constraints.matrix
-        self._pulled = np.zeros_like(self._base)  # Cᵀr₀ (N,3)
+        self._pulled = np.zeros_like(self._base)
         self._offset = _pull(
             matrix.indptr, matrix.indices, matrix.data, self._base, self._origin, self._targets, self._pulled
-        )  # ‖r₀‖²
+        )
 
     @property
     def pulled_targets(self) -> np.ndarray:
@@ -64,11 +77,12 @@ class Expansion:
         return self._constraints.gram @ self._base + self._pulled
 
     def value(self, x: np.ndarray) -> float:
-        """x (N,3) float64 → ``‖C (x + origin) − T‖²``."""
+        """x (N,3) float64 → ``‖C (x + origin) − T‖²`` (moving the base to x where the expansion lost its digits)."""
         d = x - self._base
         value = float(np.sum(d * (self._constraints.gram @ d))) - 2.0 * float(np.sum(d * self._pulled)) + self._offset
-        if value < RELATIVE_FLOOR * self._offset:
-            return float(np.sum((self._constraints.matrix @ (x + self._origin) - self._targets) ** 2))
+        if value < REBASE_BELOW * self._offset:
+            self._rebase(x)
+            return self._offset
         return value
 
     def gradient(self, x: np.ndarray) -> np.ndarray:

@@ -2,8 +2,10 @@
 over the rows, without its cost, and without the cancellation of an expansion about the origin."""
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
+from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.soft_constraints import SoftConstraints
 
 
@@ -27,14 +29,42 @@ def test_value_and_gradient_equal_the_row_sums():
     assert np.isclose(expansion.value(base), np.sum((matrix @ base - targets) ** 2), rtol=1e-14, atol=0)  # d = 0
 
 
-def test_exact_fit_is_summed_over_the_rows():
+def test_an_exact_fit_is_zero_to_the_rows_rounding():
+    """The expansion cancels at an exact fit (its rounding: ε × the base's misfit, about 1e-13 here), so it moves its
+    base there: value and gradient then come from the rows, zero up to their own rounding (ε² per row)."""
     rng = np.random.default_rng(1)
     matrix = _barycentric(300, 30, rng)
     solution, base = rng.normal(size=(30, 3)), rng.normal(size=(30, 3))
     expansion = SoftConstraints(matrix).expand(base, matrix @ solution)
-    # the expansion cancels to rounding (relative to the base's misfit); the rows give the exact zero
-    assert expansion.value(solution) == np.sum((matrix @ solution - matrix @ solution) ** 2) == 0.0
-    assert np.abs(expansion.gradient(solution)).max() < 1e-12 * np.abs(matrix.T @ (matrix @ base)).max()
+    assert expansion.value(base) > 1e2
+    assert 0.0 <= expansion.value(solution) < 1e-27
+    assert np.abs(expansion.gradient(solution)).max() < 1e-14
+
+
+def test_a_falling_misfit_keeps_its_digits():
+    """Iterates converging on a least-squares fit over 12 decades of the misfit: every value within 1e-10 of the row
+    sum, relative (the base moves each time the expansion would lose more than 4 digits)."""
+    rng = np.random.default_rng(4)
+    matrix = _barycentric(3000, 50, rng)
+    targets = matrix @ rng.normal(size=(50, 3)) + 1e-3 * rng.normal(size=(3000, 3))
+    fit = np.linalg.lstsq(matrix.toarray(), targets, rcond=None)[0]
+    direction = rng.normal(size=fit.shape)
+    expansion = SoftConstraints(matrix).expand(fit + direction, targets)
+    for k in range(13):
+        x = fit + 10.0 ** (-k) * direction
+        exact = np.sum((matrix @ x - targets) ** 2)
+        assert abs(expansion.value(x) - exact) <= 1e-10 * exact
+        assert np.allclose(expansion.gradient(x), matrix.T @ (matrix @ x - targets), rtol=0, atol=1e-9)
+
+
+def test_wrong_shapes_name_the_array():
+    soft = SoftConstraints(_barycentric(20, 10, np.random.default_rng(5)))
+    with pytest.raises(NerfEditError, match=r"targets must have shape \(20, 3\), got \(4, 3\)"):
+        soft.expand(np.zeros((10, 3)), np.zeros((4, 3)))
+    with pytest.raises(NerfEditError, match=r"positions must have shape \(10, 3\)"):
+        soft.expand(np.zeros((10, 2)), np.zeros((20, 3)))
+    with pytest.raises(NerfEditError, match="origin"):
+        soft.expand(np.zeros((10, 3)), np.zeros((20, 3)), np.zeros(2))
 
 
 def test_far_targets_keep_their_digits():
