@@ -31,6 +31,7 @@ from nerfedit_plugin.geometry.injective import InjectiveSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.normals import face_normals
 from nerfedit_plugin.geometry.refine import bisect
+from nerfedit_plugin.geometry.soft_constraints import SoftConstraints
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 from nerfedit_plugin.timing import Progress, Span, no_progress
 
@@ -173,17 +174,18 @@ class Lift:
         self.embedding = proxy.embedding_matrix()[self.surface]
         self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
         self.injective: InjectiveSolver | None = None  # built on the first fold
-        if self.method == "tet-arap":
+        if self.method == "tet-arap":  # the ARAP lift and the re-lift share the embedding's CᵀC
             weight = self.config.constraint_weight
+            self._soft = SoftConstraints(self.embedding)
             self.solver = ArapSolver(
-                proxy.vertices, proxy.tets, energy="elements", constraints=self.embedding, constraint_weight=weight
+                proxy.vertices, proxy.tets, energy="elements", constraints=self._soft, constraint_weight=weight
             )
-            self._soft = self.embedding
         elif self.method == "tet-edit":
             fixed, self.handle_targets = self.edit.handle_targets(proxy.vertices)
             self.solver = ArapSolver(proxy.vertices, proxy.tets, energy="elements", fixed=fixed)
             rows = np.arange(len(fixed))
-            self._soft = sp.csr_matrix((np.ones(len(fixed)), (rows, fixed)), shape=(len(fixed), len(proxy.vertices)))
+            selection = sp.csr_matrix((np.ones(len(fixed)), (rows, fixed)), shape=(len(fixed), len(proxy.vertices)))
+            self._soft = SoftConstraints(selection)
 
     def frame(
         self, index: int, surface: np.ndarray, previous: np.ndarray | None, span: Span | None = None

@@ -193,7 +193,8 @@ class ArapSolver:
     with a prefactored sparse Cholesky; handle vertices eliminated exactly; optional soft linear constraints.
 
     ``vertices (N,3) float64`` (rest), ``elements (F,3)`` triangles or ``(K,4)`` tets int64, ``fixed (H,) int64``
-    handle vertex indices, ``constraints`` a sparse ``C (m,N)``.
+    handle vertex indices, ``constraints`` a sparse ``C (m,N)`` (or a SoftConstraints holding it, sharing its
+    ``CᵀC``).
 
     ``constraints`` ``C (m, N)`` and ``constraint_weight`` w add ``w_c ‖C X − T‖²`` with the dimensionless ``w``
     scaled to ``w_c = w · mean(diag(m·L))`` (the average stiffness of a vertex in the ARAP system), so ``w = 1``
@@ -210,7 +211,7 @@ class ArapSolver:
         *,
         energy: str | None = None,
         fixed: np.ndarray | tuple = (),
-        constraints: sp.spmatrix | None = None,
+        constraints: sp.spmatrix | SoftConstraints | None = None,
         constraint_weight: float = 0.0,
     ) -> None:
         rest = np.asarray(vertices, dtype=np.float64)
@@ -231,7 +232,8 @@ class ArapSolver:
         if len(np.unique(fixed)) != len(fixed):
             raise NerfEditError("ARAP: fixed vertex indices repeat")
         if constraints is not None:
-            constraints = sp.csr_matrix(constraints, dtype=np.float64)
+            soft = constraints if isinstance(constraints, SoftConstraints) else SoftConstraints(constraints)
+            constraints = soft.matrix
             if constraints.shape[1] != n:
                 raise NerfEditError(f"ARAP: constraints have {constraints.shape[1]} columns, expected {n}")
             if not (np.isfinite(constraint_weight) and constraint_weight > 0):
@@ -268,8 +270,8 @@ class ArapSolver:
         if constraints is not None:
             referenced = np.diff(lap.indptr) > 0
             self.constraint_weight = float(constraint_weight) * float(self._laplacian.diagonal()[referenced].mean())
-            self._soft = SoftConstraints(constraints)
-            system = (system + self.constraint_weight * self._soft.gram).tocsr()
+            self._soft = soft
+            system = (system + self.constraint_weight * soft.gram).tocsr()
         self._rest_energy = float(np.sum(self.rest * (self._laplacian @ self.rest)))
 
         is_free = np.zeros(n, dtype=bool)

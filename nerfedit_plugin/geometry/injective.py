@@ -306,12 +306,19 @@ def _distortion(x, tets, gradient_map, volumes):
 class InjectiveSolver:
     """Flip-free minimiser of the symmetric Dirichlet energy plus soft linear constraints on a tet mesh (see the
     module docstring). ``vertices (N,3) float64`` rest (every tet positively oriented), ``tets (K,4) int64``,
-    ``constraints`` a sparse ``C (m,N)``, ``constraint_weight`` the dimensionless ``w`` (``w_c = w · mean diag L``,
-    ``L`` the cotangent Laplacian: as in ArapSolver). The sparsity pattern of the Newton matrix (with each tet's
+    ``constraints`` a sparse ``C (m,N)`` (or a SoftConstraints holding it, sharing its ``CᵀC``),
+    ``constraint_weight`` the dimensionless ``w`` (``w_c = w · mean diag L``, ``L`` the cotangent Laplacian: as in
+    ArapSolver). The sparsity pattern of the Newton matrix (with each tet's
     16 block slots) and the preconditioner's factorisation are built once; each iteration assembles the matrix
     (compiled) and solves it by preconditioned conjugate gradients."""
 
-    def __init__(self, vertices: np.ndarray, tets: np.ndarray, constraints: sp.spmatrix, constraint_weight: float):
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        tets: np.ndarray,
+        constraints: sp.spmatrix | SoftConstraints,
+        constraint_weight: float,
+    ) -> None:
         rest = np.asarray(vertices, dtype=np.float64)
         tets = np.asarray(tets, dtype=np.int64)
         volumes = tet_signed_volumes(rest, tets)
@@ -332,11 +339,11 @@ class InjectiveSolver:
         weights = -volumes[:, None] * np.einsum("kpd,kpd->kp", b[:, _EDGES[:, 0]], b[:, _EDGES[:, 1]])
         n = len(rest)
         diagonal = np.bincount(tets.ravel(), (volumes[:, None] * np.einsum("kcd,kcd->kc", b, b)).ravel(), minlength=n)
-        self.constraints = sp.csr_matrix(constraints, dtype=np.float64)
+        self._soft = constraints if isinstance(constraints, SoftConstraints) else SoftConstraints(constraints)
+        self.constraints = self._soft.matrix
         self.constraint_weight = float(constraint_weight) * float(diagonal[np.unique(tets)].mean())
         # Newton matrix as 3×3 blocks per vertex pair (BSR): every tet's 16 corner pairs, the pairs of CᵀC and the
         # diagonal; each iteration sums the tets' blocks into their slots (compiled, _newton_kernel)
-        self._soft = SoftConstraints(self.constraints)
         gram = self._soft.gram
         gram_coo = gram.tocoo()
         pairs_i = np.concatenate([np.repeat(tets, 4, axis=1).ravel(), gram_coo.row, np.arange(n)])

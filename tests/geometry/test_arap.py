@@ -23,7 +23,9 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import _arap_kernel as kernel
 from nerfedit_plugin.geometry.arap import ArapSolver, fit_rotations, fit_rotations_numpy
 from nerfedit_plugin.geometry.cotangent import ELEMENT_EDGES, cotangent_weights
+from nerfedit_plugin.geometry.injective import InjectiveSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.soft_constraints import SoftConstraints
 from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
 
 igl = pytest.importorskip("igl")
@@ -373,6 +375,23 @@ def test_soft_constraints_track_a_bend_and_warm_start():
     assert residual < 0.05 * start
     warm = solver.solve(constraint_targets=targets, initial=cold.vertices, max_iterations=300)
     assert warm.iterations < cold.iterations / 3 and warm.energies[-1] <= cold.energies[-1] * (1 + 1e-6)
+
+
+def test_shared_soft_constraints_solve_like_their_matrix():
+    """An ArapSolver and an InjectiveSolver given one SoftConstraints (the lift shares its CᵀC) solve as with the
+    matrix itself, and hold the same matrix."""
+    vertices, tets = tet_grid()
+    constraints = barycentric_rows(tets, len(vertices), 2 * len(vertices))
+    targets = constraints @ (vertices * [1.1, 1.0, 0.9])
+    shared = SoftConstraints(constraints)
+    own = ArapSolver(vertices, tets, energy="elements", constraints=constraints, constraint_weight=1e3)
+    given = ArapSolver(vertices, tets, energy="elements", constraints=shared, constraint_weight=1e3)
+    assert given.solve(constraint_targets=targets).energies == own.solve(constraint_targets=targets).energies
+    injective = InjectiveSolver(vertices, tets, shared, 1e3)
+    assert injective.constraints is given.constraints is shared.matrix
+    assert injective.energy(vertices, targets) == InjectiveSolver(vertices, tets, constraints, 1e3).energy(
+        vertices, targets
+    )
 
 
 # ---- errors ---------------------------------------------------------------------------------------------
