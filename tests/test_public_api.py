@@ -80,6 +80,20 @@ def test_old_module_paths_alias_with_a_warning(old, new):
     assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
 
 
+def test_renamed_functions_alias_with_a_warning():
+    """``data.synthetic.render_views`` (a mesh into PNGs) was renamed so that it no longer shares the package's
+    ``render_views`` (a field into images)."""
+    from nerfedit_plugin.data import synthetic
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        old = synthetic.render_views
+    assert old is synthetic.render_mesh_views
+    assert any(issubclass(w.category, DeprecationWarning) and "render_mesh_views" in str(w.message) for w in caught)
+    with pytest.raises(AttributeError):
+        synthetic.no_such_name  # noqa: B018
+
+
 def test_old_packages_reexport_what_they_held():
     from nerfedit_plugin.cli import main
     from nerfedit_plugin.edit import run_edit

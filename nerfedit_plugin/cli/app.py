@@ -88,6 +88,8 @@ def _first_sentence(doc: str) -> str:
     sentence = text.split(". ")[0].rstrip(".")
     if len(sentence) > 120 and ": " in sentence:  # one line in a wide terminal
         sentence = sentence.split(": ")[0]
+        if sentence.count("(") > sentence.count(")"):  # cut inside a parenthesis: drop it
+            sentence = sentence[: sentence.rindex("(")].rstrip(" ,;")
     return sentence + "."
 
 

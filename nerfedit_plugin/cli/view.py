@@ -18,8 +18,8 @@ from nerfedit_plugin.errors import NerfEditError, check_option
 
 @dataclasses.dataclass
 class ViewArgs:
-    """Edit a mesh or a run's field interactively (--mesh / --run: pick handles, drag, render, save a spec), or show
-    an edit (--edit: deformed mesh, tet proxies, cages, handles) with Open3D; headless: --screenshot."""
+    """Edit a mesh or a run's field interactively, or show an edit, in an Open3D window. --mesh / --run: pick handles,
+    drag, render, save a spec; --edit: the deformed mesh, tet proxies, cages and handles; headless: --screenshot."""
 
     mesh: str | None = None
     """Rest mesh, or sample:NAME; default: the mesh the edit folder's config names."""

@@ -4,7 +4,7 @@ vertex-coloured mesh (``mesh.ply``: the objects in order, then the floor, then t
 in ``mesh.ply`` and its box; the floor and the background with their ranges; the foreground box ``aabb``.
 
 The ground truth of an edit of a scene moves, copies or removes objects of the description (:func:`scene_mesh`) and
-renders the resulting mesh with :func:`nerfedit_plugin.data.synthetic.render_views`. The format and the camera
+renders the resulting mesh with :func:`nerfedit_plugin.data.synthetic.render_mesh_views`. The format and the camera
 placements are in docs/usage.md, "Scenes".
 """
 
@@ -407,7 +407,7 @@ def scene_mesh(
     removed: Collection[str] = (),
 ) -> SurfaceMesh:
     """The mesh of the edited scene — the ground truth of an edit, for
-    :func:`nerfedit_plugin.data.synthetic.render_views`: the objects in order (``removed`` ones dropped; those in
+    :func:`nerfedit_plugin.data.synthetic.render_mesh_views`: the objects in order (``removed`` ones dropped; those in
     ``moves`` moved by a (4,4) affine transform or given their new vertex positions ``(n, 3)``, e.g. a deformation),
     the floor, the background, then ``copies``: ``(name, transform or positions)``, each a further copy of that
     object (colours and faces unchanged). Without edits it is ``scene.mesh`` exactly."""

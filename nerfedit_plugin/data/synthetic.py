@@ -287,7 +287,7 @@ def generate_dataset(config: GenerateConfig) -> Path:
     return Path(config.out)
 
 
-def render_views(
+def render_mesh_views(
     mesh: SurfaceMesh,
     transforms: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -318,7 +318,7 @@ def render_ground_truth(
     supersample: int | None = None,
     overwrite: bool = False,
 ) -> list[Path]:
-    """:func:`render_views` of the mesh with its vertices moved to ``deformed_vertices (V,3)`` (same faces and
+    """:func:`render_mesh_views` of the mesh with its vertices moved to ``deformed_vertices (V,3)`` (same faces and
     colours): the identity deformation reproduces the dataset's images exactly."""
     mesh = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
     deformed = np.asarray(deformed_vertices, dtype=np.float64)
@@ -326,4 +326,17 @@ def render_ground_truth(
         raise NerfEditError(
             f"deformed vertices: expected shape {mesh.vertices.shape} (the mesh's vertices), got {deformed.shape}"
         )
-    return render_views(mesh.with_vertices(deformed), transforms, out_dir, supersample, overwrite)
+    return render_mesh_views(mesh.with_vertices(deformed), transforms, out_dir, supersample, overwrite)
+
+
+def __getattr__(name: str):
+    """``render_views``, this function's former name, is :func:`render_mesh_views` with a DeprecationWarning (the
+    package's ``render_views`` renders a field)."""
+    if name == "render_views":
+        import warnings
+
+        warnings.warn(
+            "nerfedit_plugin.data.synthetic.render_views is now render_mesh_views", DeprecationWarning, stacklevel=2
+        )
+        return render_mesh_views
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

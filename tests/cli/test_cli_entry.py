@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from nerfedit_plugin.cli import app
-from nerfedit_plugin.cli.app import COMMANDS, Interrupted, command, description, interrupts_raise, main
+from nerfedit_plugin.cli.app import COMMANDS, Interrupted, _first_sentence, command, description, interrupts_raise, main
 from nerfedit_plugin.cli.common import Command
 from nerfedit_plugin.io import atomic
 from nerfedit_plugin.io.atomic import STAGING, atomic_dir
@@ -41,6 +41,8 @@ def test_descriptions_are_the_first_sentence_of_each_args_docstring():
         line = description(name)
         assert line.endswith(".") and 20 < len(line) <= 120, (name, line)
         assert doc.startswith(line[:-1]), (name, line)
+        assert line.count("(") == line.count(")"), (name, line)
+    assert _first_sentence("W" * 100 + " (x: " + "y" * 30 + ". More.") == "W" * 100 + "."
     assert description("demo") == "The whole pipeline on the built-in bunny scene, on the CPU."
 
 

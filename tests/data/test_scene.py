@@ -24,7 +24,7 @@ from nerfedit_plugin.data.synthetic import (
     colorize,
     generate_dataset,
     render_mesh,
-    render_views,
+    render_mesh_views,
     to_generator_frame,
 )
 from nerfedit_plugin.errors import NerfEditError
@@ -100,7 +100,7 @@ def test_images_are_fully_opaque_and_held_out_views_differ_from_training_views(d
 def test_the_unedited_scene_mesh_renders_the_dataset_images(dataset, scene, tmp_path):
     mesh = scene_mesh(scene)
     assert np.array_equal(mesh.vertices, scene.mesh.vertices) and np.array_equal(mesh.faces, scene.mesh.faces)
-    for path in render_views(mesh, dataset / "transforms_test.json", tmp_path / "gt"):
+    for path in render_mesh_views(mesh, dataset / "transforms_test.json", tmp_path / "gt"):
         ours, theirs = read_image(path), read_image(dataset / "test" / path.name)
         assert all(np.array_equal(a, b) for a, b in zip(ours, theirs))
 
@@ -112,7 +112,7 @@ def _where(part: SurfaceMesh, cameras) -> np.ndarray:
 
 def test_moving_an_object_changes_only_the_pixels_where_it_was_or_went(dataset, scene, tmp_path):
     shift = translation(0.0, 0.35, 0.0)
-    paths = render_views(scene_mesh(scene, {"bone": shift}), dataset / "transforms_test.json", tmp_path / "gt")
+    paths = render_mesh_views(scene_mesh(scene, {"bone": shift}), dataset / "transforms_test.json", tmp_path / "gt")
     cameras = read_transforms(dataset / "transforms_test.json").cameras
     bone = scene.part(scene.object("bone"))
     moved = bone.with_vertices(bone.vertices + shift[:3, 3])
