@@ -27,7 +27,7 @@ from nerfedit_plugin.edit.deformer import DeformerConfig
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
-from nerfedit_plugin.edit.spec import load_edit_spec
+from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
@@ -107,6 +107,18 @@ class Base:
         """Rewrite the new edit's ``deformation.npz`` at ``path`` as the base's deformation followed by it."""
         base = SceneDeformation.load(self.folder / "deformation.npz")
         base.chained(SceneDeformation.load(path), self.frame).save(path)
+
+
+def copy_spec(edit: str | os.PathLike, spec: EditSpec, out_dir: Path) -> None:
+    """Copy the spec file ``edit`` into ``out_dir`` with the selection files it names beside its folder (at the same
+    relative paths), so the copy reads as the original did; files named from outside its folder stay referenced."""
+    shutil.copyfile(edit, out_dir / Path(edit).name)
+    folder = Path(edit).resolve().parent
+    for path in spec.selection_files():
+        if path.is_relative_to(folder):
+            target = out_dir / path.relative_to(folder)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, target)
 
 
 def run_edit(
@@ -200,7 +212,7 @@ def run_edit(
                 base.chain(stage / "deformation.npz")
             if lifter.refinements:  # else deformation.npz holds the proxy as built
                 proxy.save(stage / "proxy.npz")
-            shutil.copyfile(edit, stage / Path(edit).name)
+            copy_spec(edit, spec, stage)
             model.write_artifacts(stage)
             write_config(stage / "config.yml", record if record is not None else {"deformer": deformer, "lift": lift})
         report = {

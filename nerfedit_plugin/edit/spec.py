@@ -127,6 +127,10 @@ class EditSpec:
                 targets[f, cols] = handle.transform.apply(points[idx[cols]], t, pivot)
         return idx, targets
 
+    def selection_files(self) -> list[Path]:
+        """The selection files the handles read (``select.file``), resolved, in handle order."""
+        return [h.selection.params["file"].path for h in self.handles if h.selection.kind == "file"]
+
     def path(self, key: str) -> Path:
         """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""
         if key not in self.extra:

@@ -84,3 +84,29 @@ def test_bad_selection_files_are_one_clear_error(capsule, tmp_path):
     with pytest.raises(NerfEditError, match="a selection needs vertex indices"):
         write_selection(tmp_path / "none.json", capsule, [capsule.n_vertices])
     assert not (tmp_path / "none.json").exists()
+
+
+def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_path, proxy_cache):
+    """`nerfedit edit` copies the spec with the selection files beside it (at their relative paths): the copy in the
+    edit folder selects the same vertices (the editor saves its selections beside the spec it writes)."""
+    from deformers.arap import ArapConfig
+    from nerfedit_plugin.edit.job import run_edit
+    from nerfedit_plugin.edit.spec import load_edit_spec
+
+    folder = tmp_path / "spec"
+    bottom, top = np.flatnonzero(capsule.vertices[:, 2] < -0.9), np.flatnonzero(capsule.vertices[:, 2] > 0.9)
+    write_selection(folder / "edit.handle0.selection.json", capsule, bottom)
+    write_selection(folder / "picks" / "top.selection.json", capsule, top)
+    handles = [
+        {"select": {"file": "edit.handle0.selection.json"}, "fixed": True},
+        {"select": {"file": "picks/top.selection.json"}, "transform": {"translate": [0.0, 0.1, 0.0]}},
+    ]
+    (folder / "edit.json").write_text(json.dumps({"handles": handles}))
+    out = tmp_path / "out"
+    run_edit(capsule, ArapConfig(), folder / "edit.json", out, lift="knn3", cache_dir=proxy_cache)
+    assert (out / "edit.handle0.selection.json").is_file() and (out / "picks" / "top.selection.json").is_file()
+    copy, original = load_edit_spec(out / "edit.json"), load_edit_spec(folder / "edit.json")
+    for a, b in zip(copy.handles, original.handles):
+        np.testing.assert_array_equal(
+            a.selection.indices(capsule.vertices, "c"), b.selection.indices(capsule.vertices, "o")
+        )
