@@ -101,6 +101,20 @@ def _clean_once(folder: Path) -> None:
         clean_stale(folder)
 
 
+def _make_parent(path: Path) -> None:
+    """Create ``path``'s folder; a path the OS refuses (a file where a folder must be, a name too long, no permission)
+    is a :class:`NerfEditError` naming it."""
+    from nerfedit_plugin.errors import NerfEditError
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.exists()  # raises for a name longer than the file system allows
+    except OSError as exc:
+        blocking = next((p for p in path.parents if p.is_file()), None)
+        reason = f"{blocking} is a file, not a folder" if blocking is not None else exc.strerror or str(exc)
+        raise NerfEditError(f"{path}: cannot write here ({reason})") from None
+
+
 def _create(folder: Path, name: str, suffix: str = "", *, directory: bool, old: bool = False) -> Path:
     """Create a fresh staging file or folder (modes: those of any other writer, the umask applies)."""
     while True:
@@ -153,7 +167,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[str]:
     The staging name keeps ``path``'s suffix so writers that choose a format by suffix behave.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parent(path)
     _clean_once(path.parent)
     tmp = _create(path.parent, path.stem, path.suffix, directory=False)
     try:
@@ -188,6 +202,7 @@ def atomic_dir(
     from nerfedit_plugin.errors import NerfEditError
 
     path = Path(path)
+    _make_parent(path)
     if path.exists() and not path.is_dir():
         raise NerfEditError(f"{path}: exists and is not a folder")
     resuming = resume and path.is_dir() and is_partial(path)
@@ -198,7 +213,6 @@ def atomic_dir(
                 "replace it"
             )
         raise NerfEditError(f"{path}: output folder exists and is not empty (pass --overwrite to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(path.parent)
     stage = _create(path.parent, path.name, directory=True)
     if resuming:

@@ -137,3 +137,18 @@ def test_completed_outputs_are_recorded_but_not_the_files_inside_a_staging_folde
         write_text(stage / "inside.txt", "x")
     write_text(tmp_path / "alone.txt", "x")
     assert atomic.committed[since:] == [tmp_path / "out", tmp_path / "alone.txt"]
+
+
+@pytest.mark.parametrize("writer", ["dir", "path"])
+def test_an_output_the_os_refuses_is_one_error_naming_it(tmp_path, writer):
+    """A file where a folder must be, or a name longer than the file system allows: a NerfEditError naming the
+    path, nothing written."""
+    (tmp_path / "afile").write_text("x")
+    open_output = atomic_dir if writer == "dir" else atomic_path
+    with pytest.raises(NerfEditError, match="afile is a file, not a folder"):
+        with open_output(tmp_path / "afile" / "out"):
+            pass
+    with pytest.raises(NerfEditError, match="cannot write here"):
+        with open_output(tmp_path / ("a" * 300)):
+            pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
