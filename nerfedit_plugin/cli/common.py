@@ -37,7 +37,7 @@ from nerfedit_plugin.config import from_plain, read_config
 from nerfedit_plugin.errors import NerfEditError, OptionError
 from nerfedit_plugin.registry import Registry, discover
 
-console = Console()
+console = Console(emoji=False)  # paths and messages print verbatim: "a:fire:b" is not an emoji
 """The console of every subcommand: results on stdout; :func:`print_error` and :func:`print_warning` write one line
 to stderr."""
 

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from nerfedit_plugin.config import from_plain, to_plain
-from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.errors import NerfEditError, OptionError
 from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.registry import FIELDS, Registry, discover
 
@@ -99,6 +99,8 @@ def load_field(
         config = from_plain(config_class, payload["config"])
         field = config.setup(scene_bbox=torch.tensor(payload["scene_bbox"], dtype=torch.float32))
         field.load_state_dict(payload["state_dict"])
+    except OptionError as exc:  # a recorded option the backend does not have, or of the wrong kind
+        raise NerfEditError(f"{path}: config.{exc.option}: {exc.problem}") from exc
     except NerfEditError:
         raise
     except Exception as exc:  # missing config keys, wrong tensor shapes: the file does not match the backend

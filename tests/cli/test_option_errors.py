@@ -134,3 +134,38 @@ def test_configs_validate_when_built_in_python():
     NerfConfig.tiny(), NeusConfig.tiny(), NerfConfig(), NeusConfig(), MeshFieldConfig(), LiftConfig()
     NeusConfig(resolution=8, upsample_steps=(), occupancy_resolution=0)
     NerfConfig(resolution=32, upsample_steps=(), occupancy_resolution=0)
+
+
+@pytest.mark.parametrize(
+    "section, key, value, message",
+    [
+        (None, "lift", "nosuch", "lift: expected one of 'tet-arap',"),
+        ("deformer_options", "max_iterations", "abc", "deformer_options.max_iterations: expected an integer"),
+        ("deformer_options", "energy", "wrong", "deformer_options.energy: expected one of 'spokes_and_rims',"),
+        ("deformer_options", "enrgy", "spokes", "deformer_options.enrgy: unknown key (the options are: energy,"),
+        ("lift_options", "constraint_weight", "heavy", "lift_options.constraint_weight: expected a number"),
+        ("lift_options", "injective", 1, "lift_options.injective: expected true or false, got 1"),
+        ("proxy", "cage_faces", [1], "proxy.cage_faces: expected an integer, got [1]"),
+    ],
+)
+def test_a_load_config_value_of_the_wrong_kind_or_a_stray_key_is_named(tmp_path, capsys, section, key, value, message):
+    """A config.yml edited by hand: a typo'd key in any section, text for a number, a choice that does not exist are
+    one line naming the key (before, a typo was ignored and a wrong type surfaced as a Python internal)."""
+    config = {"mesh": "sample:bone", "edit": str(tmp_path / "e.json"), "out": str(tmp_path / "o"), "deformer": "arap"}
+    if section is None:
+        config[key] = value
+    else:
+        config[section] = {key: value}
+    (tmp_path / "config.yml").write_text(yaml.safe_dump({"command": config}))
+    assert main(["edit", "--load-config", str(tmp_path / "config.yml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"config.yml: {message}" in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_hand_written_yaml_floats_load(tmp_path):
+    """YAML 1.1 reads ``1e-6`` (no dot) as text; a float option takes it as the number."""
+    from deformers.arap import ArapConfig
+    from nerfedit_plugin.config import from_plain
+
+    assert from_plain(ArapConfig, {"tolerance": "1e-6"}).tolerance == 1e-6
