@@ -78,6 +78,10 @@ def edit_source(edit: Path) -> tuple[str | None, Path | None]:
     if not file.is_file():
         raise NerfEditError(f"{edit}: not an edit folder (no {CONFIG}; make one with `nerfedit edit`)")
     record = read_config(file, "the config.yml of `nerfedit edit`")
+    if "edit" not in record:
+        run_folder = (edit / "field.pt").is_file()
+        what = "a run folder: edit its field with --run" if run_folder else "make one with `nerfedit edit`"
+        raise NerfEditError(f"{edit}: not an edit folder (its {CONFIG} records no edit spec; {what})")
     mesh, run = record.get("mesh"), record.get("run")
     return (mesh if isinstance(mesh, str) else None), (Path(run) if isinstance(run, str) else None)
 

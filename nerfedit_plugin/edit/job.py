@@ -53,6 +53,8 @@ def reuse_proxy(
     ``camera_distance``; otherwise :class:`NerfEditError`."""
     source = Path(source)
     path = source / "deformation.npz" if source.is_dir() else source
+    if not source.exists():
+        raise NerfEditError(f"--proxy-from {source}: no such edit folder or deformation.npz")
     report_path = path.parent / "report.json"
     try:
         recorded = json.loads(report_path.read_text())["proxy"]["key"]

@@ -18,6 +18,9 @@ def _read_ply_open3d(path: Path) -> SurfaceMesh | None:
     order kept; None when Open3D reads no triangles (trimesh then reads the file or says what is wrong)."""
     import open3d as o3d
 
+    with open(path, "rb") as file:
+        if file.read(4) not in (b"ply\n", b"ply\r"):  # not a PLY: Open3D's RPly would print its own error line
+            return None
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh = o3d.io.read_triangle_mesh(str(path))
     if not mesh.has_triangles():

@@ -461,3 +461,5 @@ def test_rerun_with_proxy_from_is_bit_identical(tmp_path, capsule):
         reuse_proxy(first, rest.with_vertices(rest.vertices * 1.01), COARSE)
     with pytest.raises(NerfEditError, match="records no proxy key"):
         reuse_proxy(tmp_path, rest, COARSE)
+    with pytest.raises(NerfEditError, match="no such edit folder or deformation.npz"):
+        reuse_proxy(tmp_path / "nowhere", rest, COARSE)

@@ -67,6 +67,14 @@ def test_a_ply_without_triangles_is_left_to_trimesh(tmp_path):
         SurfaceMesh.load(tmp_path / "points.ply")
 
 
+@pytest.mark.parametrize("content", [b"", b"solid x\n", b"pl"])
+def test_a_file_that_is_no_ply_is_left_to_trimesh_without_open3d_output(content, tmp_path, capfd):
+    """Open3D's RPly would print its own error line before nerfedit's; the magic number is checked first."""
+    (tmp_path / "e.ply").write_bytes(content)
+    assert _read_ply_open3d(tmp_path / "e.ply") is None
+    assert capfd.readouterr() == ("", "")
+
+
 def test_a_bad_index_in_a_fast_read_file_names_the_file(tmp_path):
     path = tmp_path / "bad.ply"
     SurfaceMesh(MESH.vertices, MESH.faces).save(path)

@@ -72,6 +72,12 @@ def test_view_errors(edit_dir, tmp_path, capsys):
         main(["view", "--edit", str(tmp_path), "--mesh", "sample:bone", "--screenshot", str(tmp_path / "a.png")]) == 2
     )
     assert "not an edit folder" in capsys.readouterr().err
+    run = tmp_path / "run"  # a run folder has a config.yml too, of `nerfedit train`
+    run.mkdir()
+    (run / "config.yml").write_text("field: mesh\n")
+    (run / "field.pt").write_bytes(b"")
+    assert main(["view", "--edit", str(run), "--screenshot", str(tmp_path / "a.png")]) == 2
+    assert "run: not an edit folder (its config.yml records no edit spec; a run folder" in capsys.readouterr().err
     assert main(["view", "--edit", str(edit_dir), "--show", "tets", "--screenshot", str(tmp_path / "a.png")]) == 2
     assert "unknown layer" in capsys.readouterr().err
     assert not (tmp_path / "a.png").exists()
