@@ -71,6 +71,8 @@ def edit(args: EditArgs) -> None:
     if args.base is None and args.base_frame is not None:
         raise NerfEditError("--base-frame: needs --base EDIT_DIR")
     base = Base.of(args.base, args.base_frame) if args.base is not None else None
+    if base is not None and run is not None:
+        base.check_run(run.path)
     if base is not None and args.mesh is not None:
         raise NerfEditError("--mesh and --base: the rest of an edit of an edit is the base's deformed mesh")
     if args.mesh is None and run is None and base is None:

@@ -100,6 +100,17 @@ class Base:
             raise NerfEditError(f"--base-frame {frame}: out of range for the {n} frame(s) of {folder}")
         return cls(folder, frame)
 
+    def check_run(self, run: str | os.PathLike) -> None:
+        """Raise :class:`NerfEditError` unless the base edit was made on the run folder ``run`` (its ``config.yml``
+        records it): a chained deformation bends only the field of the run it was made on."""
+        from nerfedit_plugin.config import read_config
+
+        record = read_config(self.folder / "config.yml", "the config.yml of `nerfedit edit`")
+        recorded = record.get("run")
+        if not isinstance(recorded, str) or Path(recorded).resolve() != Path(run).resolve():
+            made_on = f"the run {recorded}" if isinstance(recorded, str) else f"the mesh {record.get('mesh')}"
+            raise NerfEditError(f"--base {self.folder}: an edit of {made_on}, not of --run {run}")
+
     def mesh(self) -> SurfaceMesh:
         """The base edit's deformed mesh of :attr:`frame`: the rest of the new edit."""
         meshes = sorted(self.folder.glob("deformed_mesh*.ply"))

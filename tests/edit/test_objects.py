@@ -172,6 +172,28 @@ def test_overlapping_instances_are_reported_and_render_deterministically(scene, 
     assert into_box.mean() > 0.99
 
 
+def test_an_edit_of_an_edit_must_be_on_the_run_its_base_was_made_on(tmp_path):
+    """`nerfedit edit --run R --base B`: B's config.yml must record the run R (the chained deformation bends R's
+    field); an edit of a mesh, or of another run, is one error naming both."""
+    import yaml
+
+    from nerfedit_plugin.errors import NerfEditError
+
+    base = tmp_path / "base"
+    base.mkdir()
+    (base / "deformation.npz").write_bytes(b"")
+    (base / "deformed_mesh.ply").write_bytes(b"")
+    for run in ("run_a", "run_b"):
+        (tmp_path / run).mkdir()
+    (base / "config.yml").write_text(yaml.safe_dump({"mesh": None, "run": str(tmp_path / "run_a")}))
+    Base.of(base).check_run(tmp_path / "run_a")
+    with pytest.raises(NerfEditError, match=f"an edit of the run {tmp_path / 'run_a'}, not of --run"):
+        Base.of(base).check_run(tmp_path / "run_b")
+    (base / "config.yml").write_text(yaml.safe_dump({"mesh": "in/sphere.obj", "run": None}))
+    with pytest.raises(NerfEditError, match="an edit of the mesh in/sphere.obj, not of --run"):
+        Base.of(base).check_run(tmp_path / "run_a")
+
+
 def test_edit_of_an_edit_chains_the_deformations(scene, tmp_path, proxy_cache):
     """Slide the box by 0.1 along y, then edit that result: slide it by 0.1 along x. Rendering the chained
     deformation.npz matches the ground truth of both moves."""
