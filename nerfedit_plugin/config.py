@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import numbers
 import os
 import types
 import typing
@@ -62,8 +63,8 @@ def _value_from_plain(tp: Any, value: Any) -> Any:
         for arg in (a for a in args if a is not type(None)):
             try:
                 return _value_from_plain(arg, value)
-            except (TypeError, ValueError) as exc:
-                problems.append(str(exc))
+            except (TypeError, ValueError, OptionError) as exc:
+                problems.append(exc.problem if isinstance(exc, OptionError) else str(exc))
         raise ValueError(" or ".join(dict.fromkeys(problems)) or f"unexpected value {value!r}")
     if origin is typing.Literal:
         if value not in args:
@@ -76,7 +77,7 @@ def _value_from_plain(tp: Any, value: Any) -> Any:
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         return tp(value)
     if isinstance(tp, type) and issubclass(tp, Path):
-        return Path(_checked(str, value, "a path"))
+        return Path(_checked((str, os.PathLike), value, "a path"))
     if isinstance(tp, type) and issubclass(tp, np.ndarray):
         return np.asarray(value)
     if origin is tuple or origin is list:
@@ -91,14 +92,14 @@ def _value_from_plain(tp: Any, value: Any) -> Any:
     if tp is bool:
         return _checked(bool, value, "true or false")
     if tp is int:
-        return _checked(int, value, "an integer")
+        return int(_checked(numbers.Integral, value, "an integer"))
     if tp is float:
         if isinstance(value, str):  # YAML 1.1 reads 1e-6 (no dot) as text
             try:
                 return float(value)
             except ValueError:
                 pass
-        return float(_checked((int, float), value, "a number"))
+        return float(_checked(numbers.Real, value, "a number"))
     if tp is str:
         return _checked(str, value, "text")
     return value
@@ -106,7 +107,7 @@ def _value_from_plain(tp: Any, value: Any) -> Any:
 
 def _checked(kind: type | tuple[type, ...], value: Any, expected: str) -> Any:
     """``value`` when it is a ``kind`` (a bool is not a number here), else a ``ValueError``."""
-    if isinstance(value, kind) and (kind is bool or not isinstance(value, bool)):
+    if isinstance(value, kind) and (kind is bool or not isinstance(value, (bool, np.bool_))):
         return value
     raise ValueError(f"expected {expected}, got {value!r}")
 
@@ -120,8 +121,8 @@ def from_plain(cls: type, plain: dict, *, missing: Any = dataclasses.MISSING) ->
         hints = typing.get_type_hints(cls, include_extras=True)
     except Exception:  # unresolvable forward references (e.g. classes local to a test function)
         hints = {}
+    unknown = sorted(set(plain) - {f.name for f in dataclasses.fields(cls)})  # to_plain writes init=False fields too
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(plain) - set(fields))
     if unknown:
         options = ", ".join(sorted(n for n in fields if n != "_target"))
         raise OptionError(cls, unknown[0], f"unknown key (the options are: {options})")

@@ -77,11 +77,11 @@ def edit_source(edit: Path) -> tuple[str | None, Path | None]:
     file = edit / CONFIG
     if not file.is_file():
         raise NerfEditError(f"{edit}: not an edit folder (no {CONFIG}; make one with `nerfedit edit`)")
-    record = read_config(file, "the config.yml of `nerfedit edit`")
-    if "edit" not in record:
+    if not (edit / "deformation.npz").is_file():
         run_folder = (edit / "field.pt").is_file()
         what = "a run folder: edit its field with --run" if run_folder else "make one with `nerfedit edit`"
-        raise NerfEditError(f"{edit}: not an edit folder (its {CONFIG} records no edit spec; {what})")
+        raise NerfEditError(f"{edit}: not an edit folder (no deformation.npz; {what})")
+    record = read_config(file, "the config.yml of `nerfedit edit`")
     mesh, run = record.get("mesh"), record.get("run")
     return (mesh if isinstance(mesh, str) else None), (Path(run) if isinstance(run, str) else None)
 

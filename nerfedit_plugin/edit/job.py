@@ -19,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.scene_deformation import SceneDeformation
@@ -27,7 +28,7 @@ from nerfedit_plugin.edit.deformer import DeformerConfig
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
-from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec
+from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, read_spec_file
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
@@ -101,15 +102,25 @@ class Base:
         return cls(folder, frame)
 
     def check_run(self, run: str | os.PathLike) -> None:
-        """Raise :class:`NerfEditError` unless the base edit was made on the run folder ``run`` (its ``config.yml``
-        records it): a chained deformation bends only the field of the run it was made on."""
+        """Raise :class:`NerfEditError` when the base edit was made on something other than the run folder ``run``:
+        a chained deformation bends only the field of the run it was made on. What the base's ``config.yml`` records
+        decides, following its own ``--base`` back: another run that still exists, or a mesh, is an error; a run no
+        longer there (the folders moved) or no record (the demo's, the Python API's) is taken on trust."""
         from nerfedit_plugin.config import read_config
 
-        record = read_config(self.folder / "config.yml", "the config.yml of `nerfedit edit`")
-        recorded = record.get("run")
-        if not isinstance(recorded, str) or Path(recorded).resolve() != Path(run).resolve():
-            made_on = f"the run {recorded}" if isinstance(recorded, str) else f"the mesh {record.get('mesh')}"
-            raise NerfEditError(f"--base {self.folder}: an edit of {made_on}, not of --run {run}")
+        folder, seen = self.folder, set()
+        while folder is not None and folder.resolve() not in seen:
+            seen.add(folder.resolve())
+            record = read_config(folder / "config.yml", "the config.yml of `nerfedit edit`")
+            recorded, mesh = record.get("run"), record.get("mesh")
+            if isinstance(recorded, str):
+                if Path(recorded).is_dir() and Path(recorded).resolve() != Path(run).resolve():
+                    raise NerfEditError(f"--base {self.folder}: an edit of the run {recorded}, not of --run {run}")
+                return
+            if isinstance(mesh, str):
+                raise NerfEditError(f"--base {self.folder}: an edit of the mesh {mesh}, not of --run {run}")
+            base = record.get("base")
+            folder = Path(base) if isinstance(base, str) else None
 
     def mesh(self) -> SurfaceMesh:
         """The base edit's deformed mesh of :attr:`frame`: the rest of the new edit."""
@@ -123,15 +134,29 @@ class Base:
 
 
 def copy_spec(edit: str | os.PathLike, spec: EditSpec, out_dir: Path) -> None:
-    """Copy the spec file ``edit`` into ``out_dir`` with the selection files it names beside its folder (at the same
-    relative paths), so the copy reads as the original did; files named from outside its folder stay referenced."""
-    shutil.copyfile(edit, out_dir / Path(edit).name)
-    folder = Path(edit).resolve().parent
-    for path in spec.selection_files():
-        if path.is_relative_to(folder):
-            target = out_dir / path.relative_to(folder)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(path, target)
+    """Copy the spec file ``edit`` into ``out_dir`` so that the copy reads as the original does: the selection files
+    it names inside its folder are copied to the same relative paths; a name leaving the folder (``../x``) is written
+    into the copy as the absolute path (then the copy is the parsed spec re-written: comments are lost)."""
+    edit = Path(edit)
+    outside = {}
+    for handle, name, path in spec.selection_files():
+        relative = os.path.normpath(name)
+        if os.path.isabs(relative):
+            continue
+        if relative == os.pardir or relative.startswith(os.pardir + os.sep):
+            outside[handle] = str(path)
+            continue
+        target = out_dir / relative
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, target)
+    if not outside:
+        shutil.copyfile(edit, out_dir / edit.name)
+        return
+    document = read_spec_file(edit)
+    for handle, path in outside.items():
+        document["handles"][handle]["select"]["file"] = path
+    json_file = edit.suffix.lower() == ".json"
+    (out_dir / edit.name).write_text(json.dumps(document, indent=2) if json_file else yaml.safe_dump(document))
 
 
 def run_edit(

@@ -127,9 +127,14 @@ class EditSpec:
                 targets[f, cols] = handle.transform.apply(points[idx[cols]], t, pivot)
         return idx, targets
 
-    def selection_files(self) -> list[Path]:
-        """The selection files the handles read (``select.file``), resolved, in handle order."""
-        return [h.selection.params["file"].path for h in self.handles if h.selection.kind == "file"]
+    def selection_files(self) -> list[tuple[int, str, Path]]:
+        """``(handle index, name as written, resolved path)`` of every selection file the handles read
+        (``select.file``), in handle order."""
+        return [
+            (i, h.selection.params["name"], h.selection.params["file"].path)
+            for i, h in enumerate(self.handles)
+            if h.selection.kind == "file"
+        ]
 
     def path(self, key: str) -> Path:
         """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""

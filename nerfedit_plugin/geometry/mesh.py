@@ -19,7 +19,8 @@ def _read_ply_open3d(path: Path) -> SurfaceMesh | None:
     import open3d as o3d
 
     with open(path, "rb") as file:
-        if file.read(4) not in (b"ply\n", b"ply\r"):  # not a PLY: Open3D's RPly would print its own error line
+        magic = file.read(4)
+        if magic[:3] != b"ply" or not magic[3:].isspace():  # no PLY: Open3D's RPly would print its own error line
             return None
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh = o3d.io.read_triangle_mesh(str(path))

@@ -163,9 +163,40 @@ def test_a_load_config_value_of_the_wrong_kind_or_a_stray_key_is_named(tmp_path,
     assert not (tmp_path / "o").exists()
 
 
-def test_hand_written_yaml_floats_load(tmp_path):
-    """YAML 1.1 reads ``1e-6`` (no dot) as text; a float option takes it as the number."""
+def test_from_plain_takes_what_to_plain_and_python_callers_give():
+    """YAML 1.1 reads ``1e-6`` (no dot) as text: a float option takes it. A field that is no constructor argument
+    (``init=False``, written by to_plain) loads; a union of configs tries each; numpy scalars and PathLikes pass."""
+    import dataclasses
+    from pathlib import Path
+
+    import numpy as np
+
     from deformers.arap import ArapConfig
-    from nerfedit_plugin.config import from_plain
+    from nerfedit_plugin.config import from_plain, to_plain
 
     assert from_plain(ArapConfig, {"tolerance": "1e-6"}).tolerance == 1e-6
+
+    @dataclasses.dataclass
+    class A:
+        a: int = 1
+
+    @dataclasses.dataclass
+    class B:
+        b: int = 2
+
+    @dataclasses.dataclass
+    class Plugin:
+        radius: float = 1.0
+        count: int = 3
+        where: Path = Path("x")
+        sub: A | B = dataclasses.field(default_factory=A)
+        derived: float = dataclasses.field(init=False, default=0.0)
+
+    assert from_plain(Plugin, to_plain(Plugin())) == Plugin()
+    assert from_plain(Plugin, {"sub": {"b": 5}}).sub == B(5)
+    loaded = from_plain(Plugin, {"radius": np.float32(0.5), "count": np.int64(4), "where": Path("y")})
+    assert (loaded.radius, loaded.count, loaded.where) == (0.5, 4, Path("y"))
+    with pytest.raises(OptionError, match="count: expected an integer, got True"):
+        from_plain(Plugin, {"count": True})
+    with pytest.raises(OptionError, match="sub: unknown key"):
+        from_plain(Plugin, {"sub": {"c": 1}})

@@ -192,6 +192,18 @@ def test_an_edit_of_an_edit_must_be_on_the_run_its_base_was_made_on(tmp_path):
     (base / "config.yml").write_text(yaml.safe_dump({"mesh": "in/sphere.obj", "run": None}))
     with pytest.raises(NerfEditError, match="an edit of the mesh in/sphere.obj, not of --run"):
         Base.of(base).check_run(tmp_path / "run_a")
+    # an edit of an edit made without --run: its own base decides; a moved run or no record at all is trusted
+    chained = tmp_path / "chained"
+    chained.mkdir()
+    (chained / "deformation.npz").write_bytes(b"")
+    (chained / "deformed_mesh.ply").write_bytes(b"")
+    (chained / "config.yml").write_text(yaml.safe_dump({"mesh": None, "run": None, "base": str(base)}))
+    with pytest.raises(NerfEditError, match=f"--base {chained}: an edit of the mesh in/sphere.obj"):
+        Base.of(chained).check_run(tmp_path / "run_a")
+    (base / "config.yml").write_text(yaml.safe_dump({"run": str(tmp_path / "moved_away")}))
+    Base.of(chained).check_run(tmp_path / "run_b")
+    (base / "config.yml").write_text(yaml.safe_dump({"deformer": "arap", "edit": "e.json"}))  # the demo's record
+    Base.of(chained).check_run(tmp_path / "run_b")
 
 
 def test_edit_of_an_edit_chains_the_deformations(scene, tmp_path, proxy_cache):

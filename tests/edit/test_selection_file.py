@@ -87,8 +87,9 @@ def test_bad_selection_files_are_one_clear_error(capsule, tmp_path):
 
 
 def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_path, proxy_cache):
-    """`nerfedit edit` copies the spec with the selection files beside it (at their relative paths): the copy in the
-    edit folder selects the same vertices (the editor saves its selections beside the spec it writes)."""
+    """`nerfedit edit` copies the spec with the selection files beside it (at their relative paths; a name leaving
+    its folder becomes absolute in the copy): the copy in the edit folder selects the same vertices (the editor saves
+    its selections beside the spec it writes)."""
     from deformers.arap import ArapConfig
     from nerfedit_plugin.edit.job import run_edit
     from nerfedit_plugin.edit.spec import load_edit_spec
@@ -96,16 +97,26 @@ def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_pa
     folder = tmp_path / "spec"
     bottom, top = np.flatnonzero(capsule.vertices[:, 2] < -0.9), np.flatnonzero(capsule.vertices[:, 2] > 0.9)
     write_selection(folder / "edit.handle0.selection.json", capsule, bottom)
-    write_selection(folder / "picks" / "top.selection.json", capsule, top)
+    write_selection(tmp_path / "shared" / "top.selection.json", capsule, top)
+    (folder / "picks").mkdir()
+    (folder / "picks" / "top.selection.json").symlink_to(tmp_path / "shared" / "top.selection.json")
+    middle = np.flatnonzero(np.abs(capsule.vertices[:, 2] - 0.65) < 0.01)
+    write_selection(tmp_path / "shared" / "middle.selection.json", capsule, middle)
     handles = [
         {"select": {"file": "edit.handle0.selection.json"}, "fixed": True},
         {"select": {"file": "picks/top.selection.json"}, "transform": {"translate": [0.0, 0.1, 0.0]}},
+        {"select": {"file": "../shared/middle.selection.json"}, "transform": {"translate": [0.0, 0.05, 0.0]}},
     ]
-    (folder / "edit.json").write_text(json.dumps({"handles": handles}))
+    (tmp_path / "real").mkdir()
+    (tmp_path / "real" / "edit.json").write_text(json.dumps({"handles": handles}))
+    (folder / "edit.json").symlink_to(tmp_path / "real" / "edit.json")  # names resolve beside the link, as read
     out = tmp_path / "out"
     run_edit(capsule, ArapConfig(), folder / "edit.json", out, lift="knn3", cache_dir=proxy_cache)
     assert (out / "edit.handle0.selection.json").is_file() and (out / "picks" / "top.selection.json").is_file()
+    written = json.loads((out / "edit.json").read_text())  # the name leaving the folder became absolute
+    assert written["handles"][2]["select"]["file"] == str((tmp_path / "shared" / "middle.selection.json").resolve())
     copy, original = load_edit_spec(out / "edit.json"), load_edit_spec(folder / "edit.json")
+    assert len(copy.handles) == 3
     for a, b in zip(copy.handles, original.handles):
         np.testing.assert_array_equal(
             a.selection.indices(capsule.vertices, "c"), b.selection.indices(capsule.vertices, "o")

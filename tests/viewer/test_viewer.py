@@ -77,7 +77,7 @@ def test_view_errors(edit_dir, tmp_path, capsys):
     (run / "config.yml").write_text("field: mesh\n")
     (run / "field.pt").write_bytes(b"")
     assert main(["view", "--edit", str(run), "--screenshot", str(tmp_path / "a.png")]) == 2
-    assert "run: not an edit folder (its config.yml records no edit spec; a run folder" in capsys.readouterr().err
+    assert "run: not an edit folder (no deformation.npz; a run folder" in capsys.readouterr().err
     assert main(["view", "--edit", str(edit_dir), "--show", "tets", "--screenshot", str(tmp_path / "a.png")]) == 2
     assert "unknown layer" in capsys.readouterr().err
     assert not (tmp_path / "a.png").exists()
