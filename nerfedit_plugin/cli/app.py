@@ -146,6 +146,8 @@ def _interrupted(name: str, exc: KeyboardInterrupt, since: int) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``nerfedit ARGV`` (default: ``sys.argv[1:]``, as the console script runs it) → exit code."""
+    from_console = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv:
         print(overview(), file=sys.stderr)
@@ -191,7 +193,27 @@ def main(argv: list[str] | None = None) -> int:
 
                 traceback.print_exc()
             return _interrupted(argv[0], exc, since)
+        except Exception as exc:  # an interrupt that library code (an import, a kernel) wrapped in its own error
+            interrupt = _interrupt_in_chain(exc)
+            if interrupt is None or getattr(args, "verbose", False):
+                raise
+            return _interrupted(argv[0], interrupt, since)
+    if from_console:  # done and committed: a signal during the interpreter's shutdown must not fail the command
+        for signum in SIGNALS:
+            if signal.getsignal(signum) not in (signal.SIG_IGN, None):
+                signal.signal(signum, signal.SIG_IGN)
     return 0
+
+
+def _interrupt_in_chain(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (or :class:`Interrupted`) ``exc`` was raised while handling, if any."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 if __name__ == "__main__":

@@ -46,6 +46,7 @@ class ExtractArgs:
 
 def extract(args: ExtractArgs) -> None:
     from nerfedit_plugin.geometry.cleanup import drop_floaters, drop_plane
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
     from nerfedit_plugin.io.run import export_capture_mesh, extract_mesh, open_run
 
     run = open_run(args.run)
@@ -56,16 +57,19 @@ def extract(args: ExtractArgs) -> None:
             "`nerfedit train --field mesh` (--drop-plane, --drop-floaters)"
         )
     largest = args.largest_component and args.drop_floaters is None
-    path = extract_mesh(run, args.resolution, args.level, overwrite=args.overwrite, largest_component=largest)
-    mesh = run.mesh()
-    if clean:
+
+    def cleaned(mesh: SurfaceMesh) -> SurfaceMesh:
         if args.drop_plane:
             mesh = drop_plane(mesh)
         if args.drop_floaters is not None:
             mesh = drop_floaters(mesh, args.drop_floaters)
         if not len(mesh.faces):
-            raise NerfEditError(f"{path}: nothing is left after the clean-up (--drop-plane, --drop-floaters)")
-        mesh.save(path)
+            raise NerfEditError(f"{run.mesh_path}: nothing is left after the clean-up (--drop-plane, --drop-floaters)")
+        return mesh
+
+    options = {"overwrite": args.overwrite, "largest_component": largest, "clean": cleaned if clean else None}
+    path = extract_mesh(run, args.resolution, args.level, **options)
+    mesh = run.mesh()
     own = " (the mesh field's own mesh)" if run.from_mesh else ""
     console.print(f"{path}: {mesh.n_vertices} vertices, {len(mesh.faces)} faces{own}")
     if args.frame == "capture":

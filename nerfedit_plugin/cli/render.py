@@ -94,6 +94,7 @@ def render_run(
     from nerfedit_plugin.data.datasets import read_transforms
     from nerfedit_plugin.io.atomic import atomic_dir, clear_partial, mark_partial
     from nerfedit_plugin.io.faults import fault_point
+    from nerfedit_plugin.render.animation import render_key, settings_digest
     from nerfedit_plugin.render.views import default_render_config, render_views, write_images
 
     field = run.field()
@@ -103,9 +104,10 @@ def render_run(
     bent = load_deformation(deformation) if deformation is not None else None
     config = default_render_config(field)
     frames = list(range(bent.n_frames if bent is not None else 1)) if frames is None else list(frames)
+    digest = settings_digest(Path(out), render_key(run, deformation, supersample, frames, views), resume)
     with atomic_dir(out, overwrite, keep_partial=len(frames) > 1, resume=resume) as stage:
         if len(frames) > 1:
-            mark_partial(stage, {"frames": frames})
+            mark_partial(stage, {"frames": frames, "key": digest})
         for f in frames:
             folder = stage if len(frames) == 1 else stage / f"frame_{f:04d}"
             if folder != stage and folder.is_dir():  # finished before an interruption (--resume)
@@ -133,7 +135,7 @@ def render(args: RenderArgs) -> None:
     from nerfedit_plugin.bending.scene_deformation import load_deformation
     from nerfedit_plugin.cli.view import run_up
     from nerfedit_plugin.io.run import open_run
-    from nerfedit_plugin.render.animation import parse_frames, render_animation, trajectory
+    from nerfedit_plugin.render.animation import parse_frames, render_animation, render_key, trajectory
     from nerfedit_plugin.render.executors import RenderJob, make_executor
 
     run = open_run(args.run)
@@ -157,13 +159,7 @@ def render(args: RenderArgs) -> None:
     )
     cameras = run_cameras(run, cameras, "world" if orbit else args.frame_of_cameras, args.downscale)
     job = RenderJob(run.path, args.deformation, args.supersample, torch.get_num_threads())
-    key = {
-        "run": str(run.path.resolve()),
-        "deformation": str(Path(args.deformation).resolve()) if args.deformation else None,
-        "supersample": args.supersample,
-        "frames": frames,
-        "cameras": [cameras.c2w.tolist(), cameras.fx.tolist(), cameras.width, cameras.height],
-    }
+    key = render_key(run, args.deformation, args.supersample, frames, cameras)
     executor = make_executor(args.executor, job, args.ray_address, args.workers)
     try:
         out = render_animation(

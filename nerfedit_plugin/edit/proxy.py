@@ -29,6 +29,7 @@ import hashlib
 import json
 import os
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -263,6 +264,22 @@ def build_cage(mesh: SurfaceMesh, offset: float, config: ProxyConfig, times: dic
     )
 
 
+@contextlib.contextmanager
+def _python_sigint() -> Iterator[None]:
+    """pytetwild resets the process's SIGINT handler to the default: install Python's again afterwards (else Ctrl-C
+    kills the process without cleaning up), in the main thread."""
+    import signal
+    import threading
+
+    main = threading.current_thread() is threading.main_thread()
+    handler = signal.getsignal(signal.SIGINT) if main else None
+    try:
+        yield
+    finally:
+        if handler is not None:
+            signal.signal(signal.SIGINT, handler)
+
+
 def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, np.ndarray]:
     """cage (a closed SurfaceMesh) → raw pytetwild tet mesh ``(vertices (N,3) float64, tets (K,4) int64)``
     (``optimize=True``; orientation as pytetwild returns it).
@@ -273,7 +290,7 @@ def tetrahedralize(cage: SurfaceMesh, config: ProxyConfig) -> tuple[np.ndarray, 
 
     import pytetwild
 
-    with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch):
+    with tempfile.TemporaryDirectory() as scratch, contextlib.chdir(scratch), _python_sigint():
         vertices, tets = pytetwild.tetrahedralize(
             cage.vertices,
             cage.faces.astype(np.int32),

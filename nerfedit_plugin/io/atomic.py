@@ -189,7 +189,7 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 
 @contextlib.contextmanager
 def atomic_dir(
-    path: str | os.PathLike, overwrite: bool = False, keep_partial: bool = False, resume: bool = False
+    path: str | os.PathLike, overwrite: bool = False, keep_partial: bool = False, resume: bool | None = None
 ) -> Iterator[Path]:
     """Yield a staging folder beside ``path``; on success it becomes ``path``, on error it is removed.
 
@@ -197,7 +197,8 @@ def atomic_dir(
     after success). Stale staging entries of dead processes beside ``path`` are removed first. With
     ``keep_partial``, a staging folder marked partial (:func:`mark_partial`) when the error strikes becomes ``path``
     instead of being removed — when nothing is at ``path`` (a previous output is never replaced by a partial one).
-    With ``resume``, a partial output at ``path`` becomes the staging folder (the writer continues it).
+    With ``resume``, a partial output at ``path`` becomes the staging folder (the writer continues it); ``None`` (the
+    default) says the writer cannot resume, so the error on a partial output does not offer it.
     """
     from nerfedit_plugin.errors import NerfEditError
 
@@ -205,21 +206,23 @@ def atomic_dir(
     _make_parent(path)
     if path.exists() and not path.is_dir():
         raise NerfEditError(f"{path}: exists and is not a folder")
-    resuming = resume and path.is_dir() and is_partial(path)
+    resuming = bool(resume) and path.is_dir() and is_partial(path)
     if path.is_dir() and any(path.iterdir()) and not overwrite and not resuming:
         if is_partial(path):
-            raise NerfEditError(
-                f"{path}: a partial output (it holds {PARTIAL}); pass --resume to continue it or --overwrite to "
-                "replace it"
+            how = (
+                "pass --overwrite to replace it"
+                if resume is None
+                else "pass --resume to continue it or --overwrite to replace it"
             )
+            raise NerfEditError(f"{path}: a partial output (it holds {PARTIAL}); {how}")
         raise NerfEditError(f"{path}: output folder exists and is not empty (pass --overwrite to replace it)")
     clean_stale(path.parent)
     stage = _create(path.parent, path.name, directory=True)
-    if resuming:
-        with _uninterrupted():
-            os.replace(path, stage)
     old = None
     try:
+        if resuming:  # inside the try: a signal right after the move puts the partial output back
+            with _uninterrupted():
+                os.replace(path, stage)
         yield stage
         fault_point("atomic.dir.staged")
         with _uninterrupted():
@@ -234,7 +237,7 @@ def atomic_dir(
         with _uninterrupted():
             if old is not None and (old / path.name).is_dir() and not path.exists():
                 os.replace(old / path.name, path)  # the swap failed half-way: the previous output goes back
-            if keep_partial and stage.is_dir() and is_partial(stage) and not _occupied(path):
+            if (keep_partial or resuming) and stage.is_dir() and is_partial(stage) and not _occupied(path):
                 os.replace(stage, path)
                 _record(path)
             shutil.rmtree(stage, ignore_errors=True)

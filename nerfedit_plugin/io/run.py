@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import os
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -255,11 +256,13 @@ def extract_mesh(
     largest_component: bool = True,
     overwrite: bool = False,
     device: torch.device | str | None = None,
+    clean: Callable[[SurfaceMesh], SurfaceMesh] | None = None,
 ) -> Path:
     """Extract the run's mesh (marching cubes for trained fields; the mesh itself for mesh fields) into
     ``RUN_DIR/mesh.ply``, atomically; an existing mesh is replaced only with ``overwrite``, except that a mesh
     field's run, which has its mesh from :func:`train_run`, is left as it is (nothing to extract). ``largest_component``
-    drops floaters of trained fields (a mesh field's mesh is always kept whole, in its vertex order)."""
+    drops floaters of trained fields (a mesh field's mesh is always kept whole, in its vertex order); ``clean`` (e.g.
+    dropping the ground plane) runs on the extracted mesh before it is written, so the file is only ever its result."""
     if run.mesh_path.exists() and not overwrite:
         if run.from_mesh:
             return run.mesh_path
@@ -271,6 +274,8 @@ def extract_mesh(
         raise NerfEditError(f"{run.path}: {exc}") from exc
     if largest_component and field.data != "mesh":
         mesh = mesh.largest_component()
+    if clean is not None:
+        mesh = clean(mesh)
     with atomic_path(run.mesh_path) as tmp:
         mesh.save(tmp)
     return run.mesh_path

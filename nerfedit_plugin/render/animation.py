@@ -149,6 +149,28 @@ def shot_name(frame: int) -> str:
     return f"frame_{frame:04d}.png"
 
 
+def render_key(run: Any, deformation: str | os.PathLike | None, supersample: int, frames, cameras: Cameras) -> dict:
+    """What a render's images depend on, as plain data for :func:`settings_digest`."""
+    return {
+        "run": str(run.path.resolve()),
+        "deformation": str(Path(deformation).resolve()) if deformation is not None else None,
+        "supersample": supersample,
+        "frames": list(frames),
+        "cameras": [cameras.c2w.tolist(), cameras.fx.tolist(), cameras.width, cameras.height],
+    }
+
+
+def settings_digest(out: Path, key: dict, resume: bool) -> str:
+    """The digest a partial render records of ``key`` (plain data: what its images depend on); with ``resume``, a
+    partial output at ``out`` recorded with another digest (other settings: run, deformation, frames, cameras) is a
+    :class:`NerfEditError`, so one render never mixes images of two settings."""
+    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    info = partial_info(out) if resume else None
+    if info is not None and info.get("key") != digest:
+        raise NerfEditError(f"{out}: --resume: the partial render was made with other settings; use --overwrite")
+    return digest
+
+
 def render_animation(
     executor: Any,
     frames: Sequence[int],
@@ -172,10 +194,7 @@ def render_animation(
     from nerfedit_plugin.config import write_config
 
     out = Path(out)
-    digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    info = partial_info(out) if resume else None
-    if info is not None and info.get("key") != digest:
-        raise NerfEditError(f"{out}: --resume: the partial render was made with other settings; use --overwrite")
+    digest = settings_digest(out, key, resume)
     with atomic_dir(out, overwrite, keep_partial=True, resume=resume) as stage:
         mark_partial(stage, {"key": digest, "shots": len(frames)})
         todo = [i for i, frame in enumerate(frames) if not (stage / shot_name(frame)).is_file()]

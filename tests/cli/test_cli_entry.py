@@ -104,3 +104,32 @@ def test_the_one_line_names_what_was_kept(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err == f"nerfedit train: interrupted (SIGTERM); kept (complete): {tmp_path / 'first'}\n"
     assert [p.name for p in tmp_path.iterdir()] == ["first"] and STAGING not in err
+
+
+def interrupted_inside_a_library(args: TwoFolders) -> None:
+    """What numba's dispatcher and an interrupted import do: the interrupt becomes the context of their own error."""
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)
+    except Interrupted:
+        raise SystemError("CPUDispatcher(<function cell_lists>) returned a result with an exception set") from None
+
+
+def test_an_interrupt_a_library_wrapped_is_still_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(app, "command", lambda name: Command(name, TwoFolders, interrupted_inside_a_library))
+    assert main(["render", "--out", str(tmp_path)]) == 143
+    assert capsys.readouterr().err == "nerfedit render: interrupted (SIGTERM); nothing written\n"
+
+
+def test_after_the_command_the_console_script_ignores_signals(tmp_path):
+    """A signal while the interpreter shuts down after a committed output must not fail the command (exit 0)."""
+    code = (
+        "import os, signal, sys, time\n"
+        "from nerfedit_plugin.cli.app import main\n"
+        "sys.argv = ['nerfedit', 'plugins']\n"
+        "code = main()\n"
+        "os.kill(os.getpid(), signal.SIGINT); os.kill(os.getpid(), signal.SIGTERM); time.sleep(0.2)\n"
+        "sys.exit(code)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr

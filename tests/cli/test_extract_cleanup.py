@@ -22,9 +22,10 @@ def run(tmp_path, monkeypatch):
     (folder / "config.yml").write_text(yaml.safe_dump({"field": "nerf", "data": ".", "field_config": {}}))
     calls = []
 
-    def extract_mesh(run, resolution, level, *, largest_component, overwrite):
+    def extract_mesh(run, resolution, level, *, largest_component, overwrite, clean):
         calls.append(largest_component)
-        (SCENE.mesh.largest_component() if largest_component else SCENE.mesh).save(run.mesh_path)
+        mesh = SCENE.mesh.largest_component() if largest_component else SCENE.mesh
+        (mesh if clean is None else clean(mesh)).save(run.mesh_path)
         return run.mesh_path
 
     monkeypatch.setattr(nerfedit_plugin.io.run, "extract_mesh", extract_mesh)
@@ -70,3 +71,26 @@ def test_a_mesh_fields_mesh_is_not_cleaned(tmp_path, capsys):
 def test_bad_fraction_is_an_option_error(tmp_path, capsys):
     assert main(["extract", "--run", str(tmp_path), "--drop-floaters", "1.5"]) == 2
     assert "--drop-floaters: must be in [0, 1], got 1.5" in capsys.readouterr().err
+
+
+def test_the_clean_up_runs_before_the_one_write(tmp_path, capsys):
+    """extract_mesh cleans the extraction before it writes mesh.ply: an interrupt cannot leave the uncleaned mesh
+    there, and a clean-up that fails leaves the previous file as it was (a mesh field's run: its field extracts)."""
+    from nerfedit_plugin.errors import NerfEditError
+    from nerfedit_plugin.geometry.cleanup import drop_plane
+    from nerfedit_plugin.io.run import extract_mesh, open_run
+
+    SCENE.mesh.save(tmp_path / "scene.ply")
+    assert main(["train", "--field", "mesh", "--data", str(tmp_path / "scene.ply"), "--out", str(tmp_path / "r")]) == 0
+    run = open_run(tmp_path / "r")
+    before = run.mesh_path.read_bytes()
+
+    def fail(mesh):
+        raise NerfEditError("nothing left")
+
+    with pytest.raises(NerfEditError, match="nothing left"):
+        extract_mesh(run, overwrite=True, clean=fail)
+    assert run.mesh_path.read_bytes() == before
+    extract_mesh(run, overwrite=True, clean=drop_plane)
+    kept = np.concatenate([*SCENE.boxes, SCENE.floater])  # the floor dropped (a mesh field keeps every other part)
+    np.testing.assert_allclose(SurfaceMesh.load(run.mesh_path).vertices, SCENE.mesh.vertices[np.sort(kept)])

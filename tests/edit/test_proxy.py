@@ -463,3 +463,21 @@ def test_rerun_with_proxy_from_is_bit_identical(tmp_path, capsule):
         reuse_proxy(tmp_path, rest, COARSE)
     with pytest.raises(NerfEditError, match="no such edit folder or deformation.npz"):
         reuse_proxy(tmp_path / "nowhere", rest, COARSE)
+
+
+def test_ctrl_c_after_pytetwild_still_reaches_python():
+    """pytetwild resets the process's SIGINT handler to the default (Ctrl-C would kill the edit with its staging
+    folder left behind); tetrahedralize installs Python's again."""
+    code = (
+        "import os, signal, sys, trimesh\n"
+        "from nerfedit_plugin.edit.proxy import ProxyConfig, tetrahedralize\n"
+        "from nerfedit_plugin.geometry.mesh import SurfaceMesh\n"
+        "seen = []\n"
+        "signal.signal(signal.SIGINT, lambda *a: seen.append(1))\n"
+        "ball = trimesh.creation.icosphere(2)\n"
+        "tetrahedralize(SurfaceMesh(ball.vertices, ball.faces), ProxyConfig())\n"
+        "os.kill(os.getpid(), signal.SIGINT)\n"
+        "print('handled' if seen else 'missed')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "handled", (done.returncode, done.stderr)

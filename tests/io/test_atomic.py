@@ -99,7 +99,9 @@ def test_a_partial_folder_is_left_alone_refused_by_readers_and_replaced_only_wit
         open_run(run)
     with pytest.raises(NerfEditError, match="partial"):
         require_complete(run)
-    with pytest.raises(NerfEditError, match="a partial output .*--overwrite"), atomic_dir(run):
+    with pytest.raises(NerfEditError, match="a partial output .*; pass --overwrite to replace it$"), atomic_dir(run):
+        pass  # a writer that cannot resume (train) does not offer --resume
+    with pytest.raises(NerfEditError, match="pass --resume to continue it or"), atomic_dir(run, resume=False):
         pass
     with atomic_dir(run, overwrite=True) as stage:
         (stage / "config.yml").write_text("complete")

@@ -177,6 +177,9 @@ def test_a_render_terminated_between_frames_keeps_them_and_resume_finishes_it(fl
     kept = {name: contents(out / name) for name in ("frame_0000", "frame_0001")}
     refused = nerfedit(*argv)
     assert refused.returncode == 2 and "pass --resume" in refused.stderr
+    other = nerfedit(*argv, "--resume", "--frame", "0:2")  # other frames: the images would mix two settings
+    assert other.returncode == 2 and "made with other settings" in other.stderr
+    assert sorted(os.listdir(out)) == [PARTIAL, "frame_0000", "frame_0001"]
     resumed = nerfedit(*argv, "--resume", fault="render.frame@2:kill")  # a kill would strike at the 2nd new frame
     assert resumed.returncode == 0, resumed.stderr
     assert sorted(os.listdir(out)) == ["config.yml", "frame_0000", "frame_0001", "frame_0002"]
