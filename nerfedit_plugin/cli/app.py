@@ -103,14 +103,17 @@ def overview() -> str:
 
 
 @contextlib.contextmanager
-def interrupts_raise() -> Iterator[None]:
+def interrupts_raise() -> Iterator[list[int]]:
     """Within the block, SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` (in the main thread; signals that are
-    ignored stay ignored). The previous handlers come back afterwards."""
+    ignored stay ignored). The previous handlers come back afterwards. Yields the signals received, so a caller can
+    tell an interrupt that library code swallowed (trimesh's optional imports catch BaseException)."""
+    received: list[int] = []
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield received
         return
 
     def handler(signum: int, frame: object) -> None:
+        received.append(signum)
         raise Interrupted(signum)
 
     previous = {}
@@ -118,7 +121,7 @@ def interrupts_raise() -> Iterator[None]:
         if signal.getsignal(signum) not in (signal.SIG_IGN, None):
             previous[signum] = signal.signal(signum, handler)
     try:
-        yield
+        yield received
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)
@@ -160,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
 
         print_error(f"unknown command {argv[0]!r} ({USAGE}; `nerfedit --help` says what each does)")
         return 2
-    with interrupts_raise():
+    with interrupts_raise() as received:
         from nerfedit_plugin.io import atomic
 
         since, args = len(atomic.committed), None
@@ -182,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
 
                     warnings.showwarning = show
                     spec.run(args)
+                if received:  # an interrupt some library swallowed: the command ran on, but it was interrupted
+                    raise Interrupted(received[-1])
             except NerfEditError as exc:
                 if getattr(args, "verbose", False):
                     raise

@@ -133,3 +133,21 @@ def test_after_the_command_the_console_script_ignores_signals(tmp_path):
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+
+
+def swallow_the_interrupt(args: TwoFolders) -> None:
+    """What trimesh's optional imports do (``except BaseException``), then a committed output."""
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(5)
+    except BaseException:
+        pass
+    with atomic_dir(args.out / "first") as stage:
+        (stage / "a").write_text("a")
+
+
+def test_an_interrupt_a_library_swallowed_still_ends_the_command_as_interrupted(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(app, "command", lambda name: Command(name, TwoFolders, swallow_the_interrupt))
+    assert main(["generate", "--out", str(tmp_path)]) == 130
+    err = capsys.readouterr().err
+    assert err == f"nerfedit generate: interrupted (SIGINT); kept (complete): {tmp_path / 'first'}\n"
