@@ -151,3 +151,11 @@ def test_an_interrupt_a_library_swallowed_still_ends_the_command_as_interrupted(
     assert main(["generate", "--out", str(tmp_path)]) == 130
     err = capsys.readouterr().err
     assert err == f"nerfedit generate: interrupted (SIGINT); kept (complete): {tmp_path / 'first'}\n"
+
+
+def test_error_lines_print_paths_verbatim(capsys):
+    """rich would turn ``:fire:`` into an emoji and ``[x]`` into markup; a message names files exactly."""
+    from nerfedit_plugin.cli.common import print_error
+
+    print_error("in/scan:fire:v2.ply: [nan, 0.0] A:B:STEP")
+    assert capsys.readouterr().err == "error: in/scan:fire:v2.ply: [nan, 0.0] A:B:STEP\n"
