@@ -67,8 +67,14 @@ def extract(args: ExtractArgs) -> None:
             raise NerfEditError(f"{run.mesh_path}: nothing is left after the clean-up (--drop-plane, --drop-floaters)")
         return mesh
 
-    options = {"overwrite": args.overwrite, "largest_component": largest, "clean": cleaned if clean else None}
-    path = extract_mesh(run, args.resolution, args.level, **options)
+    path = extract_mesh(
+        run,
+        args.resolution,
+        args.level,
+        overwrite=args.overwrite,
+        largest_component=largest,
+        clean=cleaned if clean else None,
+    )
     mesh = run.mesh()
     own = " (the mesh field's own mesh)" if run.from_mesh else ""
     console.print(f"{path}: {mesh.n_vertices} vertices, {len(mesh.faces)} faces{own}")

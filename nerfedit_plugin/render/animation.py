@@ -149,7 +149,9 @@ def shot_name(frame: int) -> str:
     return f"frame_{frame:04d}.png"
 
 
-def render_key(run: Any, deformation: str | os.PathLike | None, supersample: int, frames, cameras: Cameras) -> dict:
+def render_key(
+    run: Any, deformation: str | os.PathLike | None, supersample: int, frames: Sequence[int], cameras: Cameras
+) -> dict:
     """What a render's images depend on, as plain data for :func:`settings_digest`."""
     return {
         "run": str(run.path.resolve()),
