@@ -13,13 +13,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.scene_deformation import SceneDeformation
@@ -28,7 +26,7 @@ from nerfedit_plugin.edit.deformer import DeformerConfig
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
-from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, read_spec_file
+from nerfedit_plugin.edit.spec import copy_spec_file, load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
@@ -133,32 +131,6 @@ class Base:
         base.chained(SceneDeformation.load(path), self.frame).save(path)
 
 
-def copy_spec(edit: str | os.PathLike, spec: EditSpec, out_dir: Path) -> None:
-    """Copy the spec file ``edit`` into ``out_dir`` so that the copy reads as the original does: the selection files
-    it names inside its folder are copied to the same relative paths; a name leaving the folder (``../x``) is written
-    into the copy as the absolute path (then the copy is the parsed spec re-written: comments are lost)."""
-    edit = Path(edit)
-    outside = {}
-    for handle, name, path in spec.selection_files():
-        relative = os.path.normpath(name)
-        if os.path.isabs(relative):
-            continue
-        if relative == os.pardir or relative.startswith(os.pardir + os.sep):
-            outside[handle] = str(path)
-            continue
-        target = out_dir / relative
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(path, target)
-    if not outside:
-        shutil.copyfile(edit, out_dir / edit.name)
-        return
-    document = read_spec_file(edit)
-    for handle, path in outside.items():
-        document["handles"][handle]["select"]["file"] = path
-    json_file = edit.suffix.lower() == ".json"
-    (out_dir / edit.name).write_text(json.dumps(document, indent=2) if json_file else yaml.safe_dump(document))
-
-
 def run_edit(
     mesh: SurfaceMesh | str | os.PathLike,
     deformer: DeformerConfig,
@@ -250,7 +222,7 @@ def run_edit(
                 base.chain(stage / "deformation.npz")
             if lifter.refinements:  # else deformation.npz holds the proxy as built
                 proxy.save(stage / "proxy.npz")
-            copy_spec(edit, spec, stage)
+            copy_spec_file(edit, stage)
             model.write_artifacts(stage)
             write_config(stage / "config.yml", record if record is not None else {"deformer": deformer, "lift": lift})
         report = {

@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -49,6 +48,7 @@ from nerfedit_plugin.edit.spec import (
     FRAMES,
     EditSpec,
     Transform,
+    copy_spec_file,
     parse_edit_spec,
     parse_transform,
     read_spec_file,
@@ -425,7 +425,7 @@ def run_objects_edit(
             names = ["deformed_mesh.ply"] if n_frames == 1 else [f"deformed_mesh_{i:04d}.ply" for i in range(n_frames)]
             for name, scene in zip(names, scenes):
                 scene.save(stage / name)
-            shutil.copyfile(edit, stage / Path(edit).name)
+            copy_spec_file(edit, stage)
             write_config(
                 stage / "config.yml", record if record is not None else {"deformer": default_deformer, "lift": lift}
             )

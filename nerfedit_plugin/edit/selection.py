@@ -113,7 +113,7 @@ def parse_selection(obj: Any, source: str, key: str, base_dir: Path) -> Selectio
             raise spec_error(source, key, f"expected a selection file path, got {value!r}")
         where = f"{source}: {key}"
         selection = read_selection(resolve_path(base_dir, value, source, key), where)
-        return Selection(kind, {"file": selection, "name": os.fspath(value)}, key)
+        return Selection(kind, {"file": selection}, key)
     if kind == "sphere":
         check_keys(value, ("center", "radius"), source, key, required=("center", "radius"))
         center = vector(value["center"], source, f"{key}.center")

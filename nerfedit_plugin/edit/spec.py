@@ -18,7 +18,8 @@ import dataclasses
 import json
 import math
 import os
-from collections.abc import Iterable
+import shutil
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -126,15 +127,6 @@ class EditSpec:
             for f, t in enumerate(self.times):
                 targets[f, cols] = handle.transform.apply(points[idx[cols]], t, pivot)
         return idx, targets
-
-    def selection_files(self) -> list[tuple[int, str, Path]]:
-        """``(handle index, name as written, resolved path)`` of every selection file the handles read
-        (``select.file``), in handle order."""
-        return [
-            (i, h.selection.params["name"], h.selection.params["file"].path)
-            for i, h in enumerate(self.handles)
-            if h.selection.kind == "file"
-        ]
 
     def path(self, key: str) -> Path:
         """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""
@@ -259,6 +251,45 @@ def read_spec_file(path: str | os.PathLike) -> Any:
         return json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
     except (ValueError, yaml.YAMLError) as exc:  # ValueError: also an integer of more than 4300 digits
         raise NerfEditError(f"{path}: cannot parse ({exc})".replace("\n", " ")) from exc
+
+
+def _file_selections(document: Any) -> Iterator[dict]:
+    """Every ``{"file": name}`` selection in a spec document, at any depth (handles, objects, their edits)."""
+    if isinstance(document, dict):
+        select = document.get("select")
+        if isinstance(select, dict) and isinstance(select.get("file"), str):
+            yield select
+        for value in document.values():
+            yield from _file_selections(value)
+    elif isinstance(document, list):
+        for value in document:
+            yield from _file_selections(value)
+
+
+def copy_spec_file(path: str | os.PathLike, out_dir: Path) -> None:
+    """Copy the (validated) spec file ``path`` into ``out_dir`` so that the copy reads as the original does: the
+    selection files it names inside its folder are copied to the same relative paths; a name leaving the folder
+    (``../x``) is written into the copy as the absolute path (then the copy is the spec re-written: comments are
+    lost)."""
+    path = Path(path)
+    document = read_spec_file(path)
+    outside = False
+    for select in _file_selections(document):
+        relative = os.path.normpath(select["file"])
+        if os.path.isabs(relative):
+            continue
+        if relative == os.pardir or relative.startswith(os.pardir + os.sep):
+            select["file"], outside = str((path.parent / relative).resolve()), True
+            continue
+        target = out_dir / relative
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path.parent / relative, target)
+    if not outside:
+        shutil.copyfile(path, out_dir / path.name)
+    elif path.suffix.lower() == ".json":
+        (out_dir / path.name).write_text(json.dumps(document, indent=2))
+    else:
+        (out_dir / path.name).write_text(yaml.safe_dump(document))
 
 
 def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:

@@ -206,6 +206,37 @@ def test_an_edit_of_an_edit_must_be_on_the_run_its_base_was_made_on(tmp_path):
     Base.of(chained).check_run(tmp_path / "run_b")
 
 
+def test_a_scene_edit_folder_keeps_the_selection_files_its_spec_names(scene, tmp_path, proxy_cache):
+    """The spec copy of a scene edit reads as the original: the object's selection file (inside the spec's folder)
+    is copied beside it, the file its edit's handle names outside the folder becomes absolute, and the copy selects
+    the same object and handle vertices."""
+    from nerfedit_plugin.edit.objects import load_objects_spec
+    from nerfedit_plugin.edit.selection_file import write_selection
+
+    box = scene["parts"][0]
+    box_idx = np.arange(box.n_vertices)
+    write_selection(tmp_path / "spec" / "sel" / "box.selection.json", scene["mesh"], box_idx)
+    top = box_idx[box.vertices[:, 2] > 0.35]
+    write_selection(tmp_path / "shared" / "top.selection.json", scene["mesh"], top)
+    handles = [
+        {"select": {"box": {"min": [-1, -1, -0.1], "max": [1, 1, 0.05]}}, "fixed": True},
+        {"select": {"file": "../shared/top.selection.json"}, "transform": {"translate": [0.05, 0, 0]}},
+    ]
+    spec = {"objects": [{"name": "box", "select": {"file": "sel/box.selection.json"}, "edit": {"handles": handles}}]}
+    result = edit(scene, tmp_path / "spec", spec, proxy_cache)
+    assert (result.out / "sel" / "box.selection.json").is_file()
+    written = json.loads((result.out / "scene.json").read_text())
+    absolute = written["objects"][0]["edit"]["handles"][1]["select"]["file"]
+    assert absolute == str((tmp_path / "shared" / "top.selection.json").resolve())
+    from nerfedit_plugin.registry import DEFORMERS, discover
+
+    arap = discover(DEFORMERS).config_class(DEFORMERS, "arap")()
+    copy, original = (load_objects_spec(p, arap) for p in (result.out / "scene.json", tmp_path / "spec" / "scene.json"))
+    np.testing.assert_array_equal(copy.resolve(scene["mesh"])[0], original.resolve(scene["mesh"])[0])
+    a, b = (s.objects[0].instances[0].edit.handles[1].selection for s in (copy, original))
+    np.testing.assert_array_equal(a.indices(box.vertices, "c"), b.indices(box.vertices, "o"))
+
+
 def test_edit_of_an_edit_chains_the_deformations(scene, tmp_path, proxy_cache):
     """Slide the box by 0.1 along y, then edit that result: slide it by 0.1 along x. Rendering the chained
     deformation.npz matches the ground truth of both moves."""
