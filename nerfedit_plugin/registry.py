@@ -1,20 +1,25 @@
 """Plugin discovery through ``importlib.metadata`` entry points.
 
 Each entry point names a config class (a dataclass subclass of the group's base config whose ``_target`` is a
-subclass of the group's base class). A plugin that fails to import or has the wrong shape is recorded in
-``Registry.skipped`` with the reason and never stops discovery. The registry names the contract classes by their
-import path, as entry points name plugins, so it depends on no stage (the contracts may use it).
+concrete subclass of the group's base class). A plugin that fails to import or has the wrong shape is recorded in
+``Registry.skipped`` with the reason and never stops discovery. nerfedit's own plugins register first: a third
+party reusing a built-in name is the one skipped, whatever the install order. Entry points in a ``nerfedit.*``
+group nerfedit does not read (``nerfedit.deformer``) are recorded as skipped too. The registry names the contract
+classes by their import path, as entry points name plugins, so it depends on no stage (the contracts may use it).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 from dataclasses import dataclass, field
 from importlib import metadata
 
 from nerfedit_plugin.errors import NerfEditError
 
+BUILTIN = "nerfedit"
+"""The distribution of the built-in plugins."""
 DEFORMERS = "nerfedit.deformers"
 FIELDS = "nerfedit.fields"
 
@@ -66,6 +71,9 @@ class Registry:
         why = next((s.reason for s in self.skipped if s.group == group and s.name == name), None)
         if why:
             raise NerfEditError(f"plugin {name!r} ({group}) is installed but broken: {why}")
+        stray = next((s for s in self.skipped if s.group not in self.plugins and s.name == name), None)
+        if stray:
+            raise NerfEditError(f"plugin {name!r} of {stray.distribution} is skipped: {stray.reason}")
         raise NerfEditError(
             f"unknown {group.split('.')[-1][:-1]} {name!r} (available: {', '.join(sorted(found)) or 'none'})"
         )
@@ -77,13 +85,21 @@ def _check_shape(obj: object, base_config: type, base_target: type) -> str | Non
         return f"expected a config dataclass, got {obj!r}"
     if not issubclass(obj, base_config):
         return f"{obj.__name__} does not subclass {base_config.__module__}.{base_config.__name__}"
+    if "__dataclass_fields__" not in vars(obj):  # inherits the base's fields: its own _target is never set
+        return f"{obj.__name__} is not decorated with @dataclass (it has only {base_config.__name__}'s fields)"
     try:
         target = obj()._target
     except Exception as exc:  # a config that cannot be default-constructed is unusable from the CLI
         return f"{obj.__name__}() failed: {exc!r}"
     if not isinstance(target, type) or not issubclass(target, base_target):
         return f"{obj.__name__}._target is {target!r}, not a subclass of {base_target.__name__}"
+    if inspect.isabstract(target):
+        return f"{target.__name__} does not implement {', '.join(sorted(target.__abstractmethods__))}"
     return None
+
+
+def _builtin_first(ep: metadata.EntryPoint) -> bool:
+    return ep.dist is None or ep.dist.name != BUILTIN
 
 
 def discover(*groups: str, bases: dict[str, tuple[type | str, type | str]] | None = None) -> Registry:
@@ -94,7 +110,7 @@ def discover(*groups: str, bases: dict[str, tuple[type | str, type | str]] | Non
     for group in groups or tuple(bases):
         base_config, base_target = (_resolve(b) for b in bases[group])
         found = registry.plugins.setdefault(group, {})
-        for ep in metadata.entry_points(group=group):
+        for ep in sorted(metadata.entry_points(group=group), key=_builtin_first):  # stable: install order otherwise
             dist = ep.dist.name if ep.dist is not None else "?"
             try:
                 obj = ep.load()
@@ -108,4 +124,10 @@ def discover(*groups: str, bases: dict[str, tuple[type | str, type | str]] | Non
                 registry.skipped.append(Skipped(group, ep.name, ep.value, dist, reason))
             else:
                 found[ep.name] = Plugin(group, ep.name, ep.value, dist, obj)
+    read, known = ", ".join(GROUPS), {*GROUPS, *bases}
+    for group in sorted(g for g in metadata.entry_points().groups if g.startswith("nerfedit.") and g not in known):
+        for ep in metadata.entry_points(group=group):
+            dist = ep.dist.name if ep.dist is not None else "?"
+            reason = f"entry-point group {group!r} is not one nerfedit reads ({read})"
+            registry.skipped.append(Skipped(group, ep.name, ep.value, dist, reason))
     return registry

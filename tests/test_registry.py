@@ -9,9 +9,9 @@ from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.registry import DEFORMERS, discover
 
 
-@pytest.fixture
-def fake_plugins(tmp_path, monkeypatch):
-    """Install a distribution with a good, a broken-import and a wrong-shape deformer entry point."""
+def write_fake_plugins(tmp_path):
+    """A distribution in ``tmp_path`` with a good, a broken-import and wrong-shape deformer entry points, one that
+    reuses the built-in name ``arap`` and one in a group nerfedit does not read."""
     (tmp_path / "fake_plugin.py").write_text(
         textwrap.dedent(
             """
@@ -31,6 +31,17 @@ def fake_plugins(tmp_path, monkeypatch):
             class NotADeformerConfig(DeformerConfig):
                 _target: type = dict
 
+            class NoDeform(Deformer):  # deform() forgotten
+                spec_keys = frozenset()
+                def bind(self, rest, edit): pass
+
+            @dataclasses.dataclass
+            class NoDeformConfig(DeformerConfig):
+                _target: type = dataclasses.field(default_factory=lambda: NoDeform)
+
+            class UndecoratedConfig(DeformerConfig):  # @dataclass forgotten: DeformerConfig's _target stays
+                _target = Shift
+
             not_a_class = 42
             """
         )
@@ -45,8 +56,18 @@ def fake_plugins(tmp_path, monkeypatch):
         "wrongtarget = fake_plugin:NotADeformerConfig\n"
         "notaclass = fake_plugin:not_a_class\n"
         "arap = fake_plugin:ShiftConfig\n"
+        "nodeform = fake_plugin:NoDeformConfig\n"
+        "undecorated = fake_plugin:UndecoratedConfig\n"
+        "[nerfedit.deformer]\n"
+        "twist = fake_plugin:ShiftConfig\n"
     )
-    monkeypatch.setattr(sys, "path", [*sys.path, str(tmp_path)])  # after the built-ins: they register first
+
+
+@pytest.fixture
+def fake_plugins(tmp_path, monkeypatch):
+    """:func:`write_fake_plugins` installed before the built-ins on ``sys.path`` (seen first)."""
+    write_fake_plugins(tmp_path)
+    monkeypatch.setattr(sys, "path", [str(tmp_path), *sys.path])
     yield
     sys.modules.pop("fake_plugin", None)
 
@@ -64,9 +85,26 @@ def test_broken_plugins_are_skipped_with_reasons(fake_plugins):
     assert "import failed" in reasons["broken"] and "fake_plugin_missing_module" in reasons["broken"]
     assert "not a subclass of Deformer" in reasons["wrongtarget"]
     assert "expected a config dataclass" in reasons["notaclass"]
-    assert "already registered" in reasons["arap"]  # a duplicate name never shadows the first registration
+    assert "does not implement deform" in reasons["nodeform"]
+    assert "UndecoratedConfig is not decorated with @dataclass" in reasons["undecorated"]
     with pytest.raises(NerfEditError, match="installed but broken: import failed"):
         registry.config_class(DEFORMERS, "broken")
+    assert "'nerfedit.deformer' is not one nerfedit reads (nerfedit.deformers, " in reasons["twist"]
+    with pytest.raises(NerfEditError, match="'twist' of fake-plugin is skipped: entry-point group 'nerfedit.deformer'"):
+        registry.config_class(DEFORMERS, "twist")
+
+
+def test_a_third_party_never_shadows_a_builtin_name(fake_plugins):
+    """The fake distribution is seen first on ``sys.path``, yet ``arap`` stays the built-in and the duplicate is the
+    one skipped."""
+    from importlib import metadata
+
+    arap = [ep.dist.name for ep in metadata.entry_points(group=DEFORMERS) if ep.name == "arap"]
+    assert arap[0] == "fake-plugin"  # the order the registry is given
+    registry = discover()
+    assert registry.plugins[DEFORMERS]["arap"].distribution == "nerfedit"
+    (skipped,) = [s for s in registry.skipped if s.name == "arap"]
+    assert skipped.distribution == "fake-plugin" and "already registered by nerfedit" in skipped.reason
 
 
 def test_unknown_plugin_lists_choices():
@@ -86,7 +124,7 @@ def test_registered_plugin_works(fake_plugins):
     assert np.allclose(deformer.deform()[0], np.eye(3) + 1)
 
 
-def test_plugins_command_lists_each_builtin_with_its_description(capsys, monkeypatch):
+def test_plugins_command_lists_each_builtin_with_its_description(capsys):
     """``nerfedit plugins``: one row per built-in (group, name, the first line of its config class's docstring, entry
     point, distribution), every built-in and nothing skipped."""
     from deformers.arap import ArapConfig
@@ -100,7 +138,7 @@ def test_plugins_command_lists_each_builtin_with_its_description(capsys, monkeyp
     from nerfedit_plugin.fields.nerf import NerfConfig
     from nerfedit_plugin.fields.neus import NeusConfig
 
-    monkeypatch.setattr(common.console, "width", 400)  # one line per row
+    assert not common.console.is_terminal  # captured: a file, so one line per row at the table's natural width
     assert main(["plugins"]) == 0
     out = capsys.readouterr().out
     rows = {

@@ -31,6 +31,7 @@ from typing import Annotated, Any
 import tyro
 from rich.console import Console
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.table import Table
 
 from nerfedit_plugin.config import from_plain, read_config
@@ -334,10 +335,17 @@ def print_table(
     overflow: str = "ellipsis",
     **table: Any,
 ) -> None:
-    """A rich table of ``rows`` (cells are printed with ``str``)."""
+    """A rich table of ``rows`` (cells are printed with ``str``): fitted to a terminal's width, at its natural width
+    into a file or pipe (no cell cut mid-word for want of a terminal)."""
     out = Table(title=title, **table)
     for column in columns:
         out.add_column(column, justify=justify, overflow=overflow)
     for row in rows:
         out.add_row(*map(str, row))
-    console.print(out)
+    width = console.width
+    if not console.is_terminal:
+        console.width = max(width, Measurement.get(console, console.options.update_width(10_000), out).maximum)
+    try:
+        console.print(out)
+    finally:
+        console.width = width

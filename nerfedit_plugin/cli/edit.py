@@ -19,7 +19,7 @@ class EditArgs:
     """Deform a mesh with a deformer plugin and lift the deformation into a tet proxy (deformation.npz)."""
 
     edit: Path
-    """Edit spec (JSON or YAML), see configs/ for examples."""
+    """Edit spec (JSON or YAML); its format: docs/usage.md, examples: configs/ (both in the nerfedit source tree)."""
     out: Path
     """Output folder (must not exist or be empty unless --overwrite)."""
     mesh: str | None = None

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import hashlib
 from pathlib import Path
 from typing import ClassVar, Literal
 
@@ -17,6 +18,7 @@ import numpy as np
 
 from nerfedit_plugin.config import InstantiateConfig
 from nerfedit_plugin.edit.spec import EditSpec
+from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.timing import Progress, no_progress
 
@@ -114,3 +116,32 @@ class Deformer(abc.ABC):
         read from ``base_dir`` are written placed into ``folder``; the kit places ``handles`` and keeps ``frames``).
         ``None`` (the default): the deformer has no keys of its own to place."""
         return None
+
+
+def mesh_digest(mesh: SurfaceMesh) -> str:
+    """sha256 of the mesh's vertex and face arrays: whether a deformer left its rest mesh as it was."""
+    digest = hashlib.sha256()
+    for array in (mesh.vertices, mesh.faces):
+        digest.update(memoryview(np.ascontiguousarray(array)).cast("B"))
+    return digest.hexdigest()
+
+
+def checked_frames(model: Deformer, frames: object, rest: SurfaceMesh, edit: EditSpec, digest: str) -> np.ndarray:
+    """``frames``, what ``model.deform()`` returned, as the contract says they are: ``(n_frames, V, 3)``, finite,
+    float64 (float32 is widened), with ``rest`` as ``digest`` (:func:`mesh_digest` before :meth:`Deformer.bind`)
+    recorded it. Otherwise a :class:`NerfEditError` naming the deformer class and the breach (a plugin's bad output
+    would fail later, in the lift, with an error pointing elsewhere, or silently edit a moved rest mesh)."""
+    who = f"deformer {type(model).__module__}.{type(model).__qualname__}"
+    if mesh_digest(rest) != digest:
+        raise NerfEditError(f"{who}: bind() or deform() modified the rest mesh in place (a deformer must not)")
+    if not isinstance(frames, np.ndarray) or frames.dtype.kind != "f":
+        what = f"an array of {frames.dtype}" if isinstance(frames, np.ndarray) else type(frames).__name__
+        raise NerfEditError(f"{who}: deform() returned {what}, not an array of float64 positions")
+    n_frames = edit.frames if edit.frames_given else (len(frames) if frames.ndim == 3 and len(frames) else 1)
+    expected = (n_frames, rest.n_vertices, 3)
+    if frames.shape != expected:
+        raise NerfEditError(f"{who}: deform() returned shape {frames.shape}, expected {expected} (frames, vertices, 3)")
+    bad = np.count_nonzero(~np.isfinite(frames))
+    if bad:
+        raise NerfEditError(f"{who}: deform() returned {bad} non-finite values (NaN or inf)")
+    return np.asarray(frames, dtype=np.float64)

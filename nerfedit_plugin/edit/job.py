@@ -22,7 +22,7 @@ import numpy as np
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.scene_deformation import SceneDeformation
 from nerfedit_plugin.config import to_plain, write_config
-from nerfedit_plugin.edit.deformer import DeformerConfig
+from nerfedit_plugin.edit.deformer import DeformerConfig, checked_frames, mesh_digest
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
@@ -193,11 +193,11 @@ def run_edit(
         spec = spec.in_world(np.eye(4) if source_to_world is None else source_to_world)
     with atomic_dir(out, overwrite=overwrite) as stage:
         with clock.stage("bind"):
-            model = deformer.setup()
+            model, digest = deformer.setup(), mesh_digest(rest)
             model.on_progress = clock.progress
             model.bind(rest, spec)
         with clock.stage("deform"):
-            frames = model.deform()
+            frames = checked_frames(model, model.deform(), rest, spec, digest)
         with clock.stage("proxy"):
             key = proxy_cache_key(rest, proxy_config, camera_distance)
             if proxy_from is not None:

@@ -39,7 +39,7 @@ import torch
 from nerfedit_plugin.bending.locate import TetLocator
 from nerfedit_plugin.bending.scene_deformation import Instance, SceneDeformation, SceneObject, Stage
 from nerfedit_plugin.config import to_plain, write_config
-from nerfedit_plugin.edit.deformer import DeformerConfig
+from nerfedit_plugin.edit.deformer import DeformerConfig, checked_frames, mesh_digest
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.ownership import own_region
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy
@@ -239,11 +239,11 @@ def _run_instance(
     report = {"name": inst.name, "deformer": None, "lift": None}
     frames, lifted, used = surface.vertices[None], proxy.vertices[None], proxy
     if inst.edit is not None:
-        model = inst.deformer.setup()
+        model, digest = inst.deformer.setup(), mesh_digest(surface)
         model.on_progress = labelled(progress, f"{inst.name} bind")
         model.bind(surface, inst.edit)
         model.on_progress = labelled(progress, f"{inst.name} deform")
-        frames = model.deform()
+        frames = checked_frames(model, model.deform(), surface, inst.edit, digest)
         lift_progress = labelled(progress, f"{inst.name} lift")
         lifter = Lift(proxy, surface, lift, lift_config, deformer=model, edit=inst.edit, progress=lift_progress)
         lifted, reports = lifter(frames)

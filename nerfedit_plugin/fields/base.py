@@ -92,11 +92,15 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
     def fit(self, dataset: Any, **kwargs: Any) -> dict:
         """``data = "images"`` fields: optimise on a :class:`nerfedit_plugin.data.datasets.Dataset` (keyword
         ``eval_dataset`` for a held-out curve); returns a log (loss/PSNR per step)."""
+        if self.data == "images":
+            raise NotImplementedError(f"{type(self).__name__} has data = 'images' but does not implement fit()")
         raise NotImplementedError(f"{type(self).__name__} is not trained on images (data = {self.data!r})")
 
     @classmethod
     def from_mesh(cls, mesh: SurfaceMesh, config: FieldConfig | None = None) -> Field:
         """``data = "mesh"`` fields: build the field from a (vertex-coloured) mesh; nothing to fit."""
+        if cls.data == "mesh":
+            raise NotImplementedError(f"{cls.__name__} has data = 'mesh' but does not implement from_mesh()")
         raise NotImplementedError(f"{cls.__name__} is not built from a mesh (data = {cls.data!r})")
 
     def save(self, path: str | os.PathLike, registry: Registry | None = None) -> None:

@@ -188,6 +188,17 @@ class _Lbfgs:
         return r.reshape(self.shape)
 
 
+def _finite(name: str, value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as float64 when it has ``shape`` and only finite entries, else a NerfEditError saying which."""
+    value = np.asarray(value, dtype=np.float64)
+    if value.shape != shape:
+        raise NerfEditError(f"ARAP: {name} must have shape {shape}, got {value.shape}")
+    bad = np.count_nonzero(~np.isfinite(value))
+    if bad:
+        raise NerfEditError(f"ARAP: {name} holds {bad} non-finite values (NaN or inf)")
+    return value
+
+
 class ArapSolver:
     """ARAP (Sorkine & Alexa 2007) on a triangle or tet mesh: cotangent weights, local polar step, global step
     with a prefactored sparse Cholesky; handle vertices eliminated exactly; optional soft linear constraints.
@@ -394,10 +405,7 @@ class ArapSolver:
             return None
         if targets is None:
             return self._soft.expand(x, self.constraints @ self.rest)  # centred rest, centred targets
-        targets = np.asarray(targets, dtype=np.float64)
-        if targets.shape != (self.constraints.shape[0], 3) or not np.isfinite(targets).all():
-            expected = (self.constraints.shape[0], 3)
-            raise NerfEditError(f"ARAP: constraint_targets must be finite {expected}, got {targets.shape}")
+        targets = _finite("constraint_targets", targets, (self.constraints.shape[0], 3))
         return self._soft.expand(x, targets, self.origin)
 
     # ---- public API ------------------------------------------------------------------------------
@@ -435,15 +443,9 @@ class ArapSolver:
         (k = 0 at the start, then once per iteration); it must not change the solve's arrays."""
         if method not in METHODS:
             raise NerfEditError(f"ARAP: unknown method {method!r} (expected one of {list(METHODS)})")
-        x = self.rest.copy() if initial is None else np.array(initial, dtype=np.float64) - self.origin
-        if x.shape != self.rest.shape or not np.isfinite(x).all():
-            raise NerfEditError(f"ARAP: initial must be finite {self.rest.shape}, got {x.shape}")
+        x = self.rest.copy() if initial is None else _finite("initial", initial, self.rest.shape) - self.origin
         if fixed_positions is not None:
-            fixed_positions = np.asarray(fixed_positions, dtype=np.float64)
-            if fixed_positions.shape != (len(self.fixed), 3) or not np.isfinite(fixed_positions).all():
-                raise NerfEditError(
-                    f"ARAP: fixed_positions must be finite ({len(self.fixed)}, 3), got {fixed_positions.shape}"
-                )
+            fixed_positions = _finite("fixed_positions", fixed_positions, (len(self.fixed), 3))
         else:
             fixed_positions = self._rest_fixed
         x[self.fixed] = fixed_positions - self.origin

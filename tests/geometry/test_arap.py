@@ -507,3 +507,23 @@ def test_vertex_with_only_degenerate_elements_is_named():
     faces = np.vstack([faces, [[n - 3, n - 2, n - 1]]])
     with pytest.raises(NerfEditError, match=f"vertex {n - 2} has no stiffness"):
         ArapSolver(vertices, faces, fixed=[0, n - 3])
+
+
+def test_bad_solve_arguments_say_whether_the_shape_or_the_values_are_wrong():
+    """A wrong shape names the expected one; NaN/inf at the right shape is counted (not "must be finite (N, 3), got
+    (N, 3)")."""
+    from nerfedit_plugin.errors import NerfEditError
+
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)
+    solver = ArapSolver(vertices, faces, fixed=[0, 1])
+    nan = vertices.copy()
+    nan[3] = np.nan
+    for kwargs, message in [
+        ({"fixed_positions": vertices[:3]}, r"ARAP: fixed_positions must have shape \(2, 3\), got \(3, 3\)"),
+        ({"fixed_positions": nan[[0, 3]]}, r"ARAP: fixed_positions holds 3 non-finite values"),
+        ({"initial": vertices[:-1]}, rf"ARAP: initial must have shape \({len(vertices)}, 3\), got"),
+        ({"initial": nan}, r"ARAP: initial holds 3 non-finite values"),
+    ]:
+        with pytest.raises(NerfEditError, match=message):
+            solver.solve(**kwargs)
