@@ -35,8 +35,11 @@ class MeshDeformer(Deformer):
 
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:
         files = edit.paths("deformed")
-        if len(files) > 1 and edit.frames not in (1, len(files)):
-            raise NerfEditError(f"{edit.source}: frames: {edit.frames} frames but {len(files)} deformed meshes")
+        if len(files) > 1 and edit.frames_given and edit.frames != len(files):
+            raise NerfEditError(
+                f"{edit.source}: frames: {edit.frames} frame(s) but {len(files)} deformed meshes (leave frames out: "
+                "one frame per mesh)"
+            )
         poses = []
         for path in files:
             mesh = SurfaceMesh.load(path)

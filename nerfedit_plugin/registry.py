@@ -11,6 +11,7 @@ classes by their import path, as entry points name plugins, so it depends on no 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib
 import inspect
 from dataclasses import dataclass, field
@@ -71,7 +72,8 @@ class Registry:
         why = next((s.reason for s in self.skipped if s.group == group and s.name == name), None)
         if why:
             raise NerfEditError(f"plugin {name!r} ({group}) is installed but broken: {why}")
-        stray = next((s for s in self.skipped if s.group not in self.plugins and s.name == name), None)
+        misspelt = [s for s in self.skipped if s.group not in self.plugins and s.name == name]
+        stray = next((s for s in misspelt if difflib.get_close_matches(group, [s.group], cutoff=0.8)), None)
         if stray:
             raise NerfEditError(f"plugin {name!r} of {stray.distribution} is skipped: {stray.reason}")
         raise NerfEditError(
@@ -109,9 +111,14 @@ def discover(*groups: str, bases: dict[str, tuple[type | str, type | str]] | Non
     registry = Registry()
     for group in groups or tuple(bases):
         base_config, base_target = (_resolve(b) for b in bases[group])
-        found = registry.plugins.setdefault(group, {})
+        found, builtin = registry.plugins.setdefault(group, {}), set()
         for ep in sorted(metadata.entry_points(group=group), key=_builtin_first):  # stable: install order otherwise
             dist = ep.dist.name if ep.dist is not None else "?"
+            if dist == BUILTIN:
+                builtin.add(ep.name)
+            elif ep.name in builtin and ep.name not in found:  # a broken built-in keeps its name
+                registry.skipped.append(Skipped(group, ep.name, ep.value, dist, f"name of a {BUILTIN} built-in"))
+                continue
             try:
                 obj = ep.load()
             except Exception as exc:  # any import-time failure of a third-party plugin must not be fatal

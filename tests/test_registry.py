@@ -1,5 +1,6 @@
 """Registry: built-ins are found through entry points; broken plugins are skipped with a reason, never fatal."""
 
+import io
 import sys
 import textwrap
 
@@ -107,6 +108,25 @@ def test_a_third_party_never_shadows_a_builtin_name(fake_plugins):
     assert skipped.distribution == "fake-plugin" and "already registered by nerfedit" in skipped.reason
 
 
+def test_a_broken_builtin_keeps_its_name(fake_plugins, tmp_path, monkeypatch):
+    """A built-in that fails to import is skipped, and a third party's plugin of that name is skipped too, rather than
+    standing in for it (here the distribution ``fake-builtin`` plays nerfedit)."""
+    from nerfedit_plugin import registry as registry_module
+
+    dist = tmp_path / "fake_builtin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: fake-builtin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[nerfedit.deformers]\nshift = fake_builtin_missing_module:Config\n")
+    monkeypatch.setattr(registry_module, "BUILTIN", "fake-builtin")
+    registry = discover()
+    assert "shift" not in registry.names(DEFORMERS)
+    reasons = {(s.distribution, s.name): s.reason for s in registry.skipped}
+    assert "import failed" in reasons["fake-builtin", "shift"]
+    assert reasons["fake-plugin", "shift"] == "name of a fake-builtin built-in"
+    with pytest.raises(NerfEditError, match="'shift' .* is installed but broken: import failed"):
+        registry.config_class(DEFORMERS, "shift")
+
+
 def test_unknown_plugin_lists_choices():
     with pytest.raises(NerfEditError, match=r"unknown deformer 'nope' \(available: .*arap.*mesh"):
         discover().config_class(DEFORMERS, "nope")
@@ -124,9 +144,11 @@ def test_registered_plugin_works(fake_plugins):
     assert np.allclose(deformer.deform()[0], np.eye(3) + 1)
 
 
-def test_plugins_command_lists_each_builtin_with_its_description(capsys):
+def test_plugins_command_lists_each_builtin_with_its_description(monkeypatch):
     """``nerfedit plugins``: one row per built-in (group, name, the first line of its config class's docstring, entry
-    point, distribution), every built-in and nothing skipped."""
+    point, distribution), every built-in and nothing skipped; piped, each row is one line whatever the width."""
+    from rich.console import Console
+
     from deformers.arap import ArapConfig
     from deformers.cage import CageConfig
     from deformers.mesh import MeshConfig
@@ -138,9 +160,11 @@ def test_plugins_command_lists_each_builtin_with_its_description(capsys):
     from nerfedit_plugin.fields.nerf import NerfConfig
     from nerfedit_plugin.fields.neus import NeusConfig
 
-    assert not common.console.is_terminal  # captured: a file, so one line per row at the table's natural width
+    piped = Console(file=io.StringIO(), width=40, force_terminal=False)  # not a terminal: rows are not folded to 40
+    monkeypatch.setattr(common, "console", piped)
     assert main(["plugins"]) == 0
-    out = capsys.readouterr().out
+    out = piped.file.getvalue()
+    assert piped._width == 40  # printing did not change the console
     rows = {
         tuple(cell.strip() for cell in line.strip().strip("│").split("│"))
         for line in out.splitlines()

@@ -342,10 +342,6 @@ def print_table(
         out.add_column(column, justify=justify, overflow=overflow)
     for row in rows:
         out.add_row(*map(str, row))
-    width = console.width
     if not console.is_terminal:
-        console.width = max(width, Measurement.get(console, console.options.update_width(10_000), out).maximum)
-    try:
-        console.print(out)
-    finally:
-        console.width = width
+        out.width = max(console.width, Measurement.get(console, console.options.update_width(10_000), out).maximum)
+    console.print(out, crop=False)

@@ -141,7 +141,7 @@ def checked_frames(model: Deformer, frames: object, rest: SurfaceMesh, edit: Edi
     expected = (n_frames, rest.n_vertices, 3)
     if frames.shape != expected:
         raise NerfEditError(f"{who}: deform() returned shape {frames.shape}, expected {expected} (frames, vertices, 3)")
-    bad = np.count_nonzero(~np.isfinite(frames))
-    if bad:
+    if not all(np.isfinite(frame).all() for frame in frames):  # a frame at a time: no (F, V, 3) temporaries
+        bad = sum(np.count_nonzero(~np.isfinite(frame)) for frame in frames)
         raise NerfEditError(f"{who}: deform() returned {bad} non-finite values (NaN or inf)")
     return np.asarray(frames, dtype=np.float64)

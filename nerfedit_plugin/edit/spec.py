@@ -268,22 +268,21 @@ def _file_selections(document: Any) -> Iterator[dict]:
 
 def copy_spec_file(path: str | os.PathLike, out_dir: Path) -> None:
     """Copy the (validated) spec file ``path`` into ``out_dir`` so that the copy reads as the original does: the
-    selection files it names inside its folder are copied to the same relative paths; a name leaving the folder
-    (``../x``) is written into the copy as the absolute path (then the copy is the spec re-written: comments are
-    lost)."""
+    selection files it names inside its folder are copied to the same relative paths; a name with a ``..`` (``../x``)
+    is written into the copy as the absolute path (then the copy is the spec re-written: comments are lost)."""
     path = Path(path)
     document = read_spec_file(path)
     outside = False
     for select in _file_selections(document):
-        relative = os.path.normpath(select["file"])
-        if os.path.isabs(relative):
+        name = select["file"]
+        if os.path.isabs(name):
             continue
-        if relative == os.pardir or relative.startswith(os.pardir + os.sep):
-            select["file"], outside = str((path.parent / relative).resolve()), True
+        if os.pardir in Path(name).parts:  # "../x", also "link/../x" (the OS resolves the link first)
+            select["file"], outside = str((path.parent / name).resolve()), True
             continue
-        target = out_dir / relative
+        target = out_dir / os.path.normpath(name)
         target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(path.parent / relative, target)
+        shutil.copyfile(path.parent / name, target)
     if not outside:
         shutil.copyfile(path, out_dir / path.name)
     elif path.suffix.lower() == ".json":

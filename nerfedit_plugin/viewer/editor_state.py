@@ -29,6 +29,7 @@ import yaml
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial.transform import Rotation
 
+from nerfedit_plugin.edit.deformer import checked_frames, mesh_digest
 from nerfedit_plugin.edit.selection_file import write_selection
 from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
@@ -339,9 +340,9 @@ class EditorState:
     def settle(self) -> np.ndarray:
         """Run the deformer plugin on the spec as ``nerfedit edit`` does → :attr:`settled` (frames,V,3); the
         previewed frame becomes :attr:`deformed`."""
-        model = self.deformer.setup()
-        model.bind(self.mesh, self.spec())
-        self.settled = np.asarray(model.deform(), dtype=np.float64)
+        model, spec, digest = self.deformer.setup(), self.spec(), mesh_digest(self.mesh)
+        model.bind(self.mesh, spec)
+        self.settled = checked_frames(model, model.deform(), self.mesh, spec, digest)
         self.deformed = self.settled[self.frame].copy()
         return self.settled
 

@@ -42,6 +42,10 @@ def test_glob_gives_one_frame_per_file_in_order(tmp_path, rest):
         rest.with_vertices(rest.vertices + i).save(tmp_path / "poses" / f"p{i}.ply")
     frames = bind(tmp_path, rest, {"deformed": "poses/*.ply"})
     assert frames.shape[0] == 3 and all(np.allclose(frames[i], rest.vertices + i) for i in range(3))
+    assert np.array_equal(bind(tmp_path, rest, {"deformed": "poses/*.ply", "frames": 3}), frames)
+    for n in (1, 2):  # an explicit frames that is not the file count (1 included: the contract's frame count)
+        with pytest.raises(NerfEditError, match=rf"frames: {n} frame\(s\) but 3 deformed meshes \(leave frames out"):
+            bind(tmp_path, rest, {"deformed": "poses/*.ply", "frames": n})
 
 
 def test_wrong_vertex_count_and_connectivity_are_errors(tmp_path, rest):

@@ -87,9 +87,9 @@ def test_bad_selection_files_are_one_clear_error(capsule, tmp_path):
 
 
 def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_path, proxy_cache):
-    """`nerfedit edit` copies the spec with the selection files beside it (at their relative paths; a name leaving
-    its folder becomes absolute in the copy): the copy in the edit folder selects the same vertices (the editor saves
-    its selections beside the spec it writes)."""
+    """`nerfedit edit` copies the spec with the selection files beside it (at their relative paths; a name with a
+    ``..``, leaving the folder or passing through a link, becomes absolute in the copy): the copy in the edit folder
+    selects the same vertices (the editor saves its selections beside the spec it writes)."""
     from deformers.arap import ArapConfig
     from nerfedit_plugin.edit.job import run_edit
     from nerfedit_plugin.edit.spec import load_edit_spec
@@ -102,10 +102,15 @@ def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_pa
     (folder / "picks" / "top.selection.json").symlink_to(tmp_path / "shared" / "top.selection.json")
     middle = np.flatnonzero(np.abs(capsule.vertices[:, 2] - 0.65) < 0.01)
     write_selection(tmp_path / "shared" / "middle.selection.json", capsule, middle)
+    (tmp_path / "elsewhere" / "deep").mkdir(parents=True)
+    (folder / "link").symlink_to(tmp_path / "elsewhere" / "deep")  # link/.. is elsewhere/, not the spec's folder
+    low = np.flatnonzero(np.abs(capsule.vertices[:, 2] + 0.65) < 0.01)
+    write_selection(tmp_path / "elsewhere" / "low.selection.json", capsule, low)
     handles = [
         {"select": {"file": "edit.handle0.selection.json"}, "fixed": True},
         {"select": {"file": "picks/top.selection.json"}, "transform": {"translate": [0.0, 0.1, 0.0]}},
         {"select": {"file": "../shared/middle.selection.json"}, "transform": {"translate": [0.0, 0.05, 0.0]}},
+        {"select": {"file": "link/../low.selection.json"}, "transform": {"translate": [0.0, 0.02, 0.0]}},
     ]
     (tmp_path / "real").mkdir()
     (tmp_path / "real" / "edit.json").write_text(json.dumps({"handles": handles}))
@@ -115,8 +120,9 @@ def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_pa
     assert (out / "edit.handle0.selection.json").is_file() and (out / "picks" / "top.selection.json").is_file()
     written = json.loads((out / "edit.json").read_text())  # the name leaving the folder became absolute
     assert written["handles"][2]["select"]["file"] == str((tmp_path / "shared" / "middle.selection.json").resolve())
+    assert written["handles"][3]["select"]["file"] == str((tmp_path / "elsewhere" / "low.selection.json").resolve())
     copy, original = load_edit_spec(out / "edit.json"), load_edit_spec(folder / "edit.json")
-    assert len(copy.handles) == 3
+    assert len(copy.handles) == 4
     for a, b in zip(copy.handles, original.handles):
         np.testing.assert_array_equal(
             a.selection.indices(capsule.vertices, "c"), b.selection.indices(capsule.vertices, "o")
