@@ -13,10 +13,13 @@ With ``--seconds S`` the ``nerf`` defaults are then trained for S CPU seconds, o
 ``--downscale``, on the recovered poses (the workspace) and on the true poses (a nerfstudio ``transforms.json`` of
 the same registered images with their true cameras mapped into the recovered model's normalised frame, with its
 foreground box: same images, same held-out split — every 8th —, same frame and box), and the PSNRs over all held-out
-views are compared (target: recovered ≥ true − 1 dB). The run on the recovered poses is then extracted, edited (the
-bunny moved by an ``objects`` spec) and rendered through the command line (:func:`edit_capture_run`).
+views are compared (target: recovered ≥ true − 1 dB). With ``--edit-seconds S`` the workflow of docs/captures.md
+then runs through the command line on the recovered poses (:func:`edit_capture_run`): ``nerfedit train --field
+FIELD`` (``--edit-field``, default ``neus``: the field to extract and edit) for S CPU seconds, extract, the bunny
+moved by an ``objects`` spec, the held-out views rendered unedited and edited, and an orbit video of the edit.
 
-Usage: ``python bench/bench_capture.py [--views 48] [--resolution 256] [--seconds 0] [--downscale 2] [--out DIR]``.
+Usage: ``python bench/bench_capture.py [--views 48] [--resolution 256] [--seconds 0] [--edit-seconds 0]
+[--edit-field neus] [--downscale 2] [--out DIR]``.
 """
 
 from __future__ import annotations
@@ -153,16 +156,25 @@ def nerfedit(*argv) -> float:
     return time.perf_counter() - start
 
 
-def edit_capture_run(out: Path, run: Path, workspace: Path, truth: dict, downscale: int, shift: float = 0.25) -> dict:
-    """The rest of the workflow on the run trained on the recovered poses, through the command line: extract the
-    scene's objects (``--drop-plane --drop-floaters 0.05``), move the bunny by ``shift`` × the foreground box's
-    size away from the cow (an ``objects`` spec selecting the component of the mesh vertex nearest to the bunny's
-    true centre, mapped into the run's frame by the alignment), and render the held-out views (downscaled by
-    ``downscale``) unedited and edited. Returns each step's wall seconds, the mesh's vertex count and the fraction
-    of held-out pixels the edit changed (by more than 10/255)."""
+def edit_capture_run(
+    out: Path, workspace: Path, truth: dict, downscale: int, field: str, seconds: float, shift: float = 0.25
+) -> dict:
+    """docs/captures.md steps 3–7 on the recovered poses, through the command line: train ``field`` for ``seconds``
+    CPU seconds (images downscaled by ``downscale``), extract the scene's objects (``--drop-plane --drop-floaters
+    0.05``), move the bunny by ``shift`` × the foreground box's size away from the cow (an ``objects`` spec
+    selecting the component of the mesh vertex nearest to the bunny's true centre, mapped into the run's frame by
+    the alignment), render the held-out views unedited and edited, and an orbit of the edit (24 shots, 128 px, mp4).
+    Returns each step's wall seconds, the held-out PSNR, the mesh's and the selected bunny's vertex counts and the
+    fraction of held-out pixels the edit changed (by more than 10/255)."""
     from nerfedit_plugin.data.datasets import read_image
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
+    run = out / f"run-edit-{field}"
+    result = {
+        "train_s": nerfedit("train", "--data", workspace, "--out", run, "--field", field, "--downscale", downscale,
+                            "--field-options.train.max-seconds", seconds, "--field-options.train.clock", "cpu"),
+    }  # fmt: skip
+    result["psnr"] = float(json.loads((run / "log.json").read_text())["eval"][-1][1])
     recovered, _, (scale, rotation, offset) = align(workspace, truth)
     scene = json.loads((out / "scene" / "scene.json").read_text())
     bunny, cow = (  # the objects' true centres in the run's (normalised) frame
@@ -170,9 +182,8 @@ def edit_capture_run(out: Path, run: Path, workspace: Path, truth: dict, downsca
     )
     box = np.asarray(recovered.meta["aabb"])
     away = (bunny - cow) / np.linalg.norm(bunny - cow) * shift * float(np.linalg.norm(box[1] - box[0]))
-    result = {
-        "extract_s": nerfedit("extract", "--run", run, "--resolution", 192, "--drop-plane", "--drop-floaters", 0.05)
-    }
+    extract = ["extract", "--run", run, "--resolution", 192, "--drop-plane", "--drop-floaters", 0.05]
+    result["extract_s"] = nerfedit(*extract)
     mesh = SurfaceMesh.load(run / "mesh.ply")
     near = mesh.vertices[np.argmin(np.linalg.norm(mesh.vertices - bunny, axis=1))]  # a point picked on the mesh
     spec = {
@@ -190,11 +201,16 @@ def edit_capture_run(out: Path, run: Path, workspace: Path, truth: dict, downsca
     result["render_unedited_s"] = nerfedit(*render, "--out", out / "views")
     edited = out / "edit" / "deformation.npz"
     result["render_edited_s"] = nerfedit(*render, "--deformation", edited, "--out", out / "views-edited")
+    orbit = ["--trajectory", "orbit", "--shots", 24, "--size", 128, "--video", "mp4", "--out", out / "orbit"]
+    result["render_orbit_s"] = nerfedit("render", "--run", run, "--deformation", edited, *orbit)
     changed = [
         np.abs(read_image(path)[0] - read_image(out / "views-edited" / path.name)[0]).max(-1) > 10 / 255
         for path in sorted((out / "views").glob("*.png"))
     ]
-    return {**result, "mesh_vertices": mesh.n_vertices, "edited_pixels": float(np.mean(changed))}
+    report = json.loads((out / "edit" / "report.json").read_text())
+    bunny_vertices = report["objects"][0]["surface"]["vertices"]
+    return {**result, "mesh_vertices": mesh.n_vertices, "bunny_vertices": bunny_vertices,
+            "edited_pixels": float(np.mean(changed))}  # fmt: skip
 
 
 def main() -> None:
@@ -202,6 +218,8 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=48)
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--seconds", type=float, default=0.0)
+    parser.add_argument("--edit-seconds", type=float, default=0.0, help="train, extract, edit and render (0: skip)")
+    parser.add_argument("--edit-field", default="neus", help="the field the edit workflow trains")
     parser.add_argument("--downscale", type=int, default=2, help="train on the images downscaled by this factor")
     parser.add_argument("--out", type=Path, default=Path("/tmp/nerfedit-bench-capture"))
     parser.add_argument("--reuse", action="store_true", help="keep the workspace of an earlier run (no new SfM)")
@@ -220,7 +238,9 @@ def main() -> None:
         truth_data = true_pose_dataset(args.out, workspace, truth)
         result["psnr_recovered"] = train_psnr(workspace, args.out / "run-recovered", args.seconds, args.downscale)
         result["psnr_true"] = train_psnr(truth_data, args.out / "run-true", args.seconds, args.downscale)
-        result["edit"] = edit_capture_run(args.out, args.out / "run-recovered", workspace, truth, args.downscale)
+    if args.edit_seconds > 0:
+        edit = edit_capture_run(args.out, workspace, truth, args.downscale, args.edit_field, args.edit_seconds)
+        result["edit"] = edit
     print(json.dumps(result, indent=2))
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from nerfedit_plugin.cli.common import CONFIG, Command, console, recorded
-from nerfedit_plugin.errors import NerfEditError, check_option
+from nerfedit_plugin.errors import NerfEditError, OptionError, check_option
 
 
 @dataclasses.dataclass
@@ -29,11 +29,15 @@ class RenderArgs:
     """Frames of the deformation: N, A:B or A:B:STEP (B exclusive; ends may be left out) or all (the default)."""
     trajectory: Literal["views", "fixed", "orbit", "path"] = "views"
     """views: every camera of --cameras for each frame; fixed: camera --view for every frame; orbit: one turn
-    around the scene over the frames; path: camera i of --cameras (or of a camera_path.json) for the i-th frame."""
+    around the scene (at the training cameras' distance, elevation and field of view) over the frames; path:
+    camera i of --cameras (or of a camera_path.json) for the i-th frame."""
     view: int = 0
     """Camera of --cameras used by --trajectory fixed."""
     size: int = 200
     """Image width and height of --trajectory orbit."""
+    shots: int | None = None
+    """Images of --trajectory orbit: one turn in SHOTS images, the frames spread evenly over them (default: one per
+    frame; 60 when a single frame is rendered, e.g. a still edit)."""
     video: tuple[Literal["mp4", "gif"], ...] = ()
     """Also write OUT/animation.mp4 and/or .gif of the frames (not for --trajectory views)."""
     fps: float | None = None
@@ -63,6 +67,10 @@ class RenderArgs:
         check_option(self, "supersample", self.supersample, self.supersample >= 1, "a positive integer")
         check_option(self, "view", self.view, self.view >= 0, ">= 0")
         check_option(self, "size", self.size, self.size >= 1, "a positive integer")
+        if self.shots is not None:
+            check_option(self, "shots", self.shots, self.shots >= 1, "a positive integer")
+            if self.trajectory != "orbit":
+                raise OptionError(self, "shots", f"only for --trajectory orbit, not {self.trajectory}")
         if self.fps is not None:
             check_option(self, "fps", self.fps, 0 < self.fps < float("inf"), "a positive number")
         if self.workers is not None:
@@ -135,7 +143,7 @@ def render(args: RenderArgs) -> None:
     from nerfedit_plugin.bending.scene_deformation import load_deformation
     from nerfedit_plugin.cli.view import run_up
     from nerfedit_plugin.io.run import open_run
-    from nerfedit_plugin.render.animation import parse_frames, render_animation, render_key, trajectory
+    from nerfedit_plugin.render.animation import orbit_shots, parse_frames, render_animation, render_key, trajectory
     from nerfedit_plugin.render.executors import RenderJob, make_executor
 
     run = open_run(args.run)
@@ -153,9 +161,12 @@ def render(args: RenderArgs) -> None:
         console.print(f"renders → {out}")
         return
     orbit = args.trajectory == "orbit"
-    box, up = (run.field("cpu").scene_bbox, run_up(run) or (0.0, 0.0, 1.0)) if orbit else (None, (0.0, 0.0, 1.0))
+    box, up, ring = None, (0.0, 0.0, 1.0), None
+    if orbit:
+        box, up = run.field("cpu").scene_bbox, run_up(run) or up
+        ring, frames = run.filming(box, up), orbit_shots(frames, args.shots)
     cameras, path_fps = trajectory(
-        args.trajectory, frames, cameras=args.cameras, view=args.view, size=args.size, scene_bbox=box, up=up
+        args.trajectory, frames, cameras=args.cameras, view=args.view, size=args.size, scene_bbox=box, up=up, ring=ring
     )
     cameras = run_cameras(run, cameras, "world" if orbit else args.frame_of_cameras, args.downscale)
     job = RenderJob(run.path, args.deformation, args.supersample, torch.get_num_threads())
@@ -168,7 +179,7 @@ def render(args: RenderArgs) -> None:
         )  # fmt: skip
     finally:
         executor.close()
-    console.print(f"{len(frames)} frames → {out}")
+    console.print(f"{len(frames)} {'shots' if orbit else 'frames'} → {out}")
 
 
 COMMAND = Command("render", RenderArgs, render, records=True)

@@ -97,6 +97,26 @@ class Run:
         center = torch.tensor(box, dtype=torch.float64).mean(0) if box is not None else centers.mean(0)
         return float(torch.linalg.norm(centers - center, dim=1).mean())
 
+    def filming(self, scene_bbox: torch.Tensor, up: tuple[float, float, float]) -> dict:
+        """Where the training cameras stood, as keywords of :func:`~nerfedit_plugin.render.views.turntable_cameras`:
+        their median distance to the centre of ``scene_bbox`` (in half-diagonals of it), elevation above its
+        equator about ``up`` (degrees) and vertical field of view (degrees), so an orbit sees the scene as it was
+        filmed (a capture's field is noise outside its cameras' reach). ``{}`` for runs built from a mesh."""
+        if _is_mesh_file(self.data):
+            return {}
+        cameras = read_transforms(self.data, "train").cameras
+        box = torch.as_tensor(scene_bbox, dtype=torch.float64).cpu()
+        offsets = cameras.c2w[:, :3, 3].double() - box.mean(0)
+        distance = torch.linalg.norm(offsets, dim=1)
+        axis = torch.as_tensor(up, dtype=torch.float64)
+        sine = (offsets @ (axis / torch.linalg.norm(axis))) / distance
+        fov = 2.0 * torch.atan(cameras.height / (2.0 * cameras.fy.double().expand(len(distance))))
+        return {
+            "distance": float(distance.median() / (torch.linalg.norm(box[1] - box[0]) / 2)),
+            "elevation_degrees": float(torch.rad2deg(torch.asin(sine.clamp(-1, 1))).median()),
+            "fov_degrees": float(torch.rad2deg(fov).median()),
+        }
+
     def source_transform(self) -> np.ndarray:
         """(4,4) float64: the similarity taking the coordinates of the mesh the data was generated from, or of the
         capture, to the run's (a capture's normalisation recorded in ``dataparser_transforms.json``, else the

@@ -30,6 +30,8 @@ from nerfedit_plugin.io.atomic import atomic_dir, atomic_path, clear_partial, ma
 from nerfedit_plugin.io.faults import fault_point
 
 Trajectory = Literal["views", "fixed", "orbit", "path"]
+STILL_ORBIT_SHOTS = 60
+"""Shots of an orbit around a single frame (a still edit): a turn of 2.5 s at 24 fps."""
 
 
 def parse_frames(spec: str | None, n_frames: int | None, option: str = "--frame") -> list[int]:
@@ -112,14 +114,16 @@ def trajectory(
     scene_bbox: torch.Tensor | None = None,
     size: int = 200,
     up: Sequence[float] = (0.0, 0.0, 1.0),
+    ring: dict | None = None,
 ) -> tuple[Cameras, float | None]:
     """One camera per shot of ``frames`` (and the camera path's fps, if it has one) for ``fixed``, ``orbit`` and
-    ``path`` (see the module docstring); ``cameras`` is the transforms file or ``camera_path.json``."""
+    ``path`` (see the module docstring); ``cameras`` is the transforms file or ``camera_path.json``; ``ring``: more
+    keywords of the orbit's :func:`~nerfedit_plugin.render.views.turntable_cameras` (distance, elevation, fov)."""
     from nerfedit_plugin.render.views import turntable_cameras
 
     n = len(frames)
     if kind == "orbit":
-        return turntable_cameras(scene_bbox, n, size, up=up), None
+        return turntable_cameras(scene_bbox, n, size, up=up, **(ring or {})), None
     if cameras is None:
         raise NerfEditError(f"--trajectory {kind}: needs --cameras (a transforms file or camera_path.json)")
     fps = None
@@ -143,6 +147,13 @@ def _is_camera_path(path: Path) -> bool:
         return path.is_file() and "camera_path" in json.loads(path.read_text())
     except (OSError, ValueError, TypeError):
         return False
+
+
+def orbit_shots(frames: Sequence[int], shots: int | None) -> list[int]:
+    """The deformation frame of each shot of an orbit of ``shots`` images over ``frames``, spread evenly (shot ``i``
+    shows ``frames[i·F // shots]``); ``None``: one shot per frame, or :data:`STILL_ORBIT_SHOTS` of a single frame."""
+    n = shots if shots is not None else (len(frames) if len(frames) > 1 else STILL_ORBIT_SHOTS)
+    return [frames[i * len(frames) // n] for i in range(n)]
 
 
 def shot_name(frame: int) -> str:
@@ -187,9 +198,10 @@ def render_animation(
     record: Any = None,
     progress: bool = True,
 ) -> Path:
-    """Render shot ``i`` = (``frames[i]``, camera ``i``) with ``executor`` into ``out/frame_NNNN.png`` (see the module
-    docstring); ``key`` (plain data: what the shots depend on) guards ``resume``; ``videos`` ⊂ {``mp4``, ``gif``}
-    writes ``out/animation.mp4`` / ``.gif`` at ``fps``; ``record`` goes to ``out/config.yml``."""
+    """Render shot ``i`` = (``frames[i]``, camera ``i``) with ``executor`` into ``out/frame_NNNN.png``, NNNN the
+    deformation frame (the shot ``i`` when a frame is shown more than once, as in an orbit of a still edit); ``key``
+    (plain data: what the shots depend on) guards ``resume``; ``videos`` ⊂ {``mp4``, ``gif``} writes
+    ``out/animation.mp4`` / ``.gif`` at ``fps``; ``record`` goes to ``out/config.yml``."""
     import skimage.io
     from rich.progress import Progress
 
@@ -197,17 +209,18 @@ def render_animation(
 
     out = Path(out)
     digest = settings_digest(out, key, resume)
+    names = [shot_name(f) for f in (frames if len(set(frames)) == len(frames) else range(len(frames)))]
     with atomic_dir(out, overwrite, keep_partial=True, resume=resume) as stage:
         mark_partial(stage, {"key": digest, "shots": len(frames)})
-        todo = [i for i, frame in enumerate(frames) if not (stage / shot_name(frame)).is_file()]
+        todo = [i for i, name in enumerate(names) if not (stage / name).is_file()]
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task("frames", total=len(frames), completed=len(frames) - len(todo))
             for i, image in executor.map([(frames[i], cameras[i]) for i in todo]):
-                with atomic_path(stage / shot_name(frames[todo[i]])) as tmp:
+                with atomic_path(stage / names[todo[i]]) as tmp:
                     skimage.io.imsave(tmp, image, check_contrast=False)
                 bar.advance(task)
                 fault_point("render.frame")
-        paths = [stage / shot_name(frame) for frame in frames]
+        paths = [stage / name for name in names]
         for kind in videos:
             write_video(stage / f"animation.{kind}", paths, fps)
         if record is not None:

@@ -86,21 +86,23 @@ def turntable_cameras(
     fov_degrees: float | None = None,
     up: Sequence[float] = (0.0, 0.0, 1.0),
 ) -> Cameras:
-    """``n`` cameras on a circle around the centre of ``scene_bbox`` (z up), ``distance`` × the box's half-diagonal
-    away, ``elevation_degrees`` above its equator, each ``size``×``size`` pixels; the default field of view frames
-    the box's bounding ball."""
+    """``n`` cameras on a circle around the centre of ``scene_bbox``, in the plane perpendicular to ``up``,
+    ``distance`` × the box's half-diagonal away and ``elevation_degrees`` above the box's equator, each
+    ``size``×``size`` pixels; the default field of view frames the box's bounding ball."""
     box = torch.as_tensor(scene_bbox, dtype=torch.float64).cpu()
     center, radius = box.mean(0), float(torch.linalg.norm(box[1] - box[0]) / 2)
+    axis = torch.as_tensor(up, dtype=torch.float64)
+    axis = axis / torch.linalg.norm(axis)
+    first = torch.eye(3, dtype=torch.float64)[int(torch.argmin(axis.abs()))]
+    first = first - (first @ axis) * axis
+    first = first / torch.linalg.norm(first)
+    second = torch.linalg.cross(axis, first)  # (first, second) = (x, y) for z up
     angles = torch.arange(n, dtype=torch.float64) * (2 * math.pi / n)
     elevation = math.radians(elevation_degrees)
-    ring = torch.stack(
-        [
-            torch.cos(angles) * math.cos(elevation),
-            torch.sin(angles) * math.cos(elevation),
-            torch.full_like(angles, math.sin(elevation)),
-        ],
-        dim=1,
+    ring = (
+        math.cos(elevation) * (torch.cos(angles)[:, None] * first + torch.sin(angles)[:, None] * second)
+        + math.sin(elevation) * axis
     )
     eyes = center + distance * radius * ring
-    fov = math.radians(fov_degrees) if fov_degrees is not None else 2.0 * math.asin(1.0 / distance)
+    fov = math.radians(fov_degrees) if fov_degrees is not None else 2.0 * math.asin(min(1.0, 1.0 / distance))
     return Cameras.from_fov(look_at(eyes, center.expand(n, 3), up), size, size, fov)

@@ -107,8 +107,44 @@ def test_trajectories_render_the_frames_the_views_render(capsule_flow, tmp_path)
         assert np.array_equal(
             pixels(tmp_path / "path" / f"frame_{f:04d}.png"), pixels(tmp_path / "views" / f"frame_{f:04d}" / names[f])
         )
-    run(*common, "--trajectory", "orbit", "--size", 16, "--frame", "0", "--out", tmp_path / "orbit")
-    assert pixels(tmp_path / "orbit" / "frame_0000.png").shape == (16, 16, 3)
+    run(*common, "--trajectory", "orbit", "--size", 16, "--frame", "0", "--shots", 4, "--out", tmp_path / "orbit",
+        "--video", "gif")  # fmt: skip
+    shots = [pixels(tmp_path / "orbit" / f"frame_{i:04d}.png") for i in range(4)]  # a still edit: named by shot
+    assert shots[0].shape == (16, 16, 3) and len(imageio.mimread(tmp_path / "orbit" / "animation.gif")) == 4
+    assert all(not np.array_equal(a, b) for a, b in zip(shots, shots[1:]))  # the camera turns
+
+
+def test_orbit_shots_spread_the_frames_and_a_still_turns_once():
+    from nerfedit_plugin.render.animation import STILL_ORBIT_SHOTS, orbit_shots
+
+    assert orbit_shots([0, 1, 2], None) == [0, 1, 2] and orbit_shots([4, 5, 6], 6) == [4, 4, 5, 5, 6, 6]
+    assert orbit_shots([0, 1, 2, 3], 2) == [0, 2] and orbit_shots([7], None) == [7] * STILL_ORBIT_SHOTS
+
+
+def test_the_orbit_flies_where_the_training_cameras_stood(capsule_flow):
+    """``Run.filming``: the orbit's cameras stand at the training cameras' median distance from the box centre, at
+    their median elevation about the up direction, with their field of view (a run built from a mesh has no cameras:
+    the default ring); the ring is perpendicular to ``up`` (also for another up than z)."""
+    from nerfedit_plugin.io.run import Run, open_run
+    from nerfedit_plugin.render.views import turntable_cameras
+
+    images = Run(capsule_flow / "run", "nerf", capsule_flow / "data", {})  # as if trained on the images
+    box = torch.tensor([[-0.6, -0.5, -1.1], [0.6, 0.5, 1.1]], dtype=torch.float64)
+    ring = images.filming(box, (0.0, 0.0, 1.0))
+    train = read_transforms(capsule_flow / "data", "train").cameras
+    offsets = train.c2w[:, :3, 3].double() - box.mean(0)
+    orbit = turntable_cameras(box, 8, 16, **ring)
+    eyes = orbit.c2w[:, :3, 3].double() - box.mean(0)
+    np.testing.assert_allclose(torch.linalg.norm(eyes, dim=1), torch.linalg.norm(offsets, dim=1).median(), rtol=1e-6)
+    np.testing.assert_allclose(orbit.fy / 16, train.fy.double().median() / train.height, rtol=1e-6)  # same fov
+    sines = offsets[:, 2] / torch.linalg.norm(offsets, dim=1)
+    np.testing.assert_allclose(eyes[:, 2] / torch.linalg.norm(eyes, dim=1), sines.median(), rtol=1e-6)
+    sideways = turntable_cameras(box, 8, 16, up=(0.0, 1.0, 0.0), elevation_degrees=30.0)
+    heights = sideways.c2w[:, 1, 3].double() - box.mean(0)[1]
+    np.testing.assert_allclose(
+        heights / torch.linalg.norm(sideways.c2w[:, :3, 3].double() - box.mean(0), dim=1), 0.5, rtol=1e-6
+    )
+    assert open_run(capsule_flow / "run").filming(box, (0.0, 0.0, 1.0)) == {}  # built from a mesh: no cameras
 
 
 def test_resume_refuses_other_settings_and_trajectories_check_their_cameras(capsule_flow, tmp_path, capsys):
@@ -122,6 +158,8 @@ def test_resume_refuses_other_settings_and_trajectories_check_their_cameras(caps
     assert "has 2 cameras for 3 frames" in capsys.readouterr().err
     assert main([str(a) for a in common + ["--trajectory", "fixed", "--cameras", flow / "data", "--view", 5]]) == 2
     assert "--view: 5 is out of range" in capsys.readouterr().err
+    assert main([str(a) for a in common + ["--trajectory", "fixed", "--cameras", flow / "data", "--shots", 4]]) == 2
+    assert "--shots: only for --trajectory orbit, not fixed" in capsys.readouterr().err
 
 
 def test_ray_frames_equal_the_local_ones_and_survive_a_killed_worker(capsule_flow):
