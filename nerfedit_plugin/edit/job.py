@@ -222,7 +222,7 @@ def run_edit(
                 base.chain(stage / "deformation.npz")
             if lifter.refinements:  # else deformation.npz holds the proxy as built
                 proxy.save(stage / "proxy.npz")
-            copy_spec_file(edit, stage)
+            copy_spec_file(edit, stage, spec.file_keys)
             model.write_artifacts(stage)
             write_config(stage / "config.yml", record if record is not None else {"deformer": deformer, "lift": lift})
         report = {

@@ -425,7 +425,8 @@ def run_objects_edit(
             names = ["deformed_mesh.ply"] if n_frames == 1 else [f"deformed_mesh_{i:04d}.ply" for i in range(n_frames)]
             for name, scene in zip(names, scenes):
                 scene.save(stage / name)
-            copy_spec_file(edit, stage)
+            keys = {k for obj in spec.objects for inst in obj.instances if inst.edit for k in inst.edit.file_keys}
+            copy_spec_file(edit, stage, keys)
             write_config(
                 stage / "config.yml", record if record is not None else {"deformer": default_deformer, "lift": lift}
             )

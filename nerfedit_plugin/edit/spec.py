@@ -15,6 +15,7 @@ Every malformed spec raises :class:`NerfEditError` naming the file and the key b
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
 import math
 import os
@@ -80,6 +81,9 @@ class EditSpec:
     frame: str = "world"
     """The frame of the handles' boxes, spheres and transforms: ``world`` (the rest mesh's own coordinates) or
     ``source`` (the mesh the data was generated from: :meth:`in_world` maps them)."""
+    file_keys: set[str] = field(default_factory=set, compare=False, repr=False)
+    """The top-level keys :meth:`path` / :meth:`paths` read files from (filled as the deformer binds): what
+    :func:`copy_spec_file` writes absolute."""
 
     def in_world(self, source_to_world: np.ndarray) -> EditSpec:
         """This spec with its handles mapped from the ``source`` frame into the world by the similarity
@@ -132,6 +136,7 @@ class EditSpec:
         """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""
         if key not in self.extra:
             raise spec_error(self.source, key, "missing")
+        self.file_keys.add(key)
         value = self.extra[key]
         if not isinstance(value, (str, os.PathLike)):
             raise spec_error(self.source, key, f"expected a file path, got {value!r}")
@@ -145,9 +150,11 @@ class EditSpec:
 
     def paths(self, key: str) -> list[Path]:
         """Resolve a list of files or one glob pattern under ``key`` (sorted); at least one must exist."""
+        self.file_keys.add(key)
         value = self.extra.get(key)
         if isinstance(value, str):
-            found = sorted(p.resolve() for p in self.base_dir.glob(value)) if any(ch in value for ch in "*?[") else None
+            pattern = os.path.join(self.base_dir, value)  # an absolute pattern stays absolute
+            found = sorted(Path(p).resolve() for p in glob.glob(pattern)) if any(ch in value for ch in "*?[") else None
             if found is None:
                 return [self.path(key)]
             if not found:
@@ -266,12 +273,15 @@ def _file_selections(document: Any) -> Iterator[dict]:
             yield from _file_selections(value)
 
 
-def copy_spec_file(path: str | os.PathLike, out_dir: Path) -> None:
+def copy_spec_file(path: str | os.PathLike, out_dir: Path, file_keys: Iterable[str] = ()) -> None:
     """Copy the (validated) spec file ``path`` into ``out_dir`` so that the copy reads as the original does: the
-    selection files it names inside its folder are copied to the same relative paths; a name with a ``..`` (``../x``)
-    is written into the copy as the absolute path (then the copy is the spec re-written: comments are lost)."""
+    selection files it names inside its folder are copied to the same relative paths; a selection named with a
+    ``..`` (``../x``), and the relative files, lists and globs of ``file_keys`` (the deformer's inputs, at the top
+    level and in scene objects' edits: :attr:`EditSpec.file_keys`), are written into the copy as absolute paths
+    (then the copy is the spec re-written: comments are lost)."""
     path = Path(path)
     document = read_spec_file(path)
+    folder = path.parent if path.parent.is_absolute() else Path.cwd() / path.parent  # names resolve as when read
     outside = False
     for select in _file_selections(document):
         name = select["file"]
@@ -283,12 +293,30 @@ def copy_spec_file(path: str | os.PathLike, out_dir: Path) -> None:
         target = out_dir / os.path.normpath(name)
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(path.parent / name, target)
+    for edit in _edits(document):
+        for key in set(file_keys) & edit.keys():
+            value = edit[key]
+            names = value if isinstance(value, list) else [value]
+            absolute = [os.path.join(folder, n) if isinstance(n, str) else n for n in names]
+            if absolute != names:
+                edit[key], outside = absolute if isinstance(value, list) else absolute[0], True
     if not outside:
         shutil.copyfile(path, out_dir / path.name)
     elif path.suffix.lower() == ".json":
         (out_dir / path.name).write_text(json.dumps(document, indent=2))
     else:
         (out_dir / path.name).write_text(yaml.safe_dump(document))
+
+
+def _edits(document: Any) -> Iterator[dict]:
+    """The edit specs in a spec document: the document itself, and each scene object's and copy's ``edit``."""
+    if not isinstance(document, dict):
+        return
+    yield document
+    for obj in document.get("objects", []) if isinstance(document.get("objects"), list) else []:
+        for item in [obj, *(obj.get("copies") or [])] if isinstance(obj, dict) else []:
+            if isinstance(item, dict) and isinstance(item.get("edit"), dict):
+                yield item["edit"]
 
 
 def load_edit_spec(path: str | os.PathLike, allowed_keys: Iterable[str] = ("handles",)) -> EditSpec:
