@@ -29,17 +29,23 @@ def reconstruct(
     images = workspace / "images"
     if not images.is_dir():
         raise NerfEditError(f"{workspace}: no images/ folder to reconstruct")
-    with atomic_dir(workspace / "sparse", overwrite) as stage, tempfile.TemporaryDirectory() as scratch:
-        database = Path(scratch) / "database.db"
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = camera_model
-        pycolmap.extract_features(database, images, camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader)
-        pycolmap.match_exhaustive(database)
-        models = pycolmap.incremental_mapping(database, images, Path(scratch) / "models")
-        if not models:
-            raise NerfEditError(f"{images}: structure from motion registered no images (too little texture or overlap)")
-        best = max(models.values(), key=lambda model: model.num_reg_images())
-        (stage / "0").mkdir()
-        best.write(str(stage / "0"))
-        shutil.copy(database, workspace / "database.db")
+    level, pycolmap.logging.minloglevel = pycolmap.logging.minloglevel, 1  # warnings up: INFO is ~300 lines a run
+    try:
+        with atomic_dir(workspace / "sparse", overwrite) as stage, tempfile.TemporaryDirectory() as scratch:
+            database = Path(scratch) / "database.db"
+            reader = pycolmap.ImageReaderOptions()
+            reader.camera_model = camera_model
+            pycolmap.extract_features(database, images, camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader)
+            pycolmap.match_exhaustive(database)
+            models = pycolmap.incremental_mapping(database, images, Path(scratch) / "models")
+            if not models:
+                raise NerfEditError(
+                    f"{images}: structure from motion registered no images (too little texture or overlap)"
+                )
+            best = max(models.values(), key=lambda model: model.num_reg_images())
+            (stage / "0").mkdir()
+            best.write(str(stage / "0"))
+            shutil.copy(database, workspace / "database.db")
+    finally:
+        pycolmap.logging.minloglevel = level
     return workspace / "sparse" / "0", best.num_reg_images()

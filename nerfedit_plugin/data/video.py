@@ -33,6 +33,8 @@ def video_frames(video: str | os.PathLike, count: int) -> Iterator[np.ndarray]:
     import imageio.v2 as imageio
 
     video = Path(video)
+    if video.is_dir():
+        raise NerfEditError(f"{video}: a folder, not a video file (a folder of photos is --images)")
     if not video.is_file():
         raise NerfEditError(f"{video}: no such video file")
     reader = None

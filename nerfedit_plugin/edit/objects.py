@@ -393,9 +393,11 @@ def run_objects_edit(
                 left = _own_regions(obj.name, runs, proxy if obj.removed else None, surface, others, objects)
             originals = [not obj.removed] + [False] * (len(runs) - 1)  # copies read their region, vacate nothing
             instances += [Instance(r.spec.name, r.owner, r.own, vacates) for r, vacates in zip(runs, originals)]
+            fill = None
             if obj.vacated == "fill" and obj.leaves:
                 rest_patch, tets, slab = fill_patch(rest, objects[left].rest_vertices, surface.bbox_diagonal)
                 patches.append((SceneObject(f"{obj.name}~fill", rest_patch, tets), slab))
+                fill = {"instance": f"{obj.name}~fill", "vertices": len(rest_patch), "tets": len(tets)}
             placed.append(runs)
             reports.append(
                 {
@@ -404,6 +406,7 @@ def run_objects_edit(
                     "proxy": {"vertices": len(proxy.vertices), "tets": len(proxy.tets), "cached": cached},
                     "removed": obj.removed,
                     "vacated": obj.vacated,
+                    "fill": fill,
                     "instances": [r.report for r in runs],
                 }
             )

@@ -39,6 +39,15 @@ def test_an_unreadable_video_is_one_error_naming_it(tmp_path, content):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_folder_given_as_the_video_points_to_images(tmp_path):
+    (tmp_path / "photos").mkdir()
+    with pytest.raises(NerfEditError, match=r"photos: a folder, not a video file \(a folder of photos is --images\)"):
+        process_capture(tmp_path / "out", video=tmp_path / "photos")
+    with pytest.raises(NerfEditError, match=r"none\.mp4: no such video file"):
+        process_capture(tmp_path / "out", video=tmp_path / "none.mp4")
+    assert not (tmp_path / "out").exists()
+
+
 def test_too_few_frames_or_registered_images_leave_nothing(tmp_path):
     with pytest.raises(NerfEditError, match="2 frame\\(s\\); structure from motion needs at least 3"):
         process_capture(tmp_path / "out", video=_video(tmp_path / "v.mp4", 2))

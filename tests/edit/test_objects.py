@@ -327,4 +327,5 @@ def test_vacated_fill_copies_neighbouring_floor_over_the_footprint(scene, tmp_pa
     elsewhere = torch.tensor([[0.4, 0.0, 0.2], [0.8, 0.8, 0.001], [0.0, -0.8, 0.001]], dtype=torch.float64)
     untouched = deformation.bend(elsewhere)
     assert not untouched.empty.any() and torch.equal(untouched.points, elsewhere.float())
-    assert result.report["objects"][0]["vacated"] == "fill"
+    report = result.report["objects"][0]
+    assert report["vacated"] == "fill" and report["fill"]["instance"] == "box~fill" and report["fill"]["tets"] > 0
