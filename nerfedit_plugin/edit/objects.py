@@ -319,14 +319,24 @@ def _scene_frames(
     n: int,
 ):
     """The edited scene's surface per frame: unselected geometry as it is, each object's original in its place
-    (dropped when removed), copies appended (faces and colours of their object's ``surfaces`` entry)."""
+    (dropped when removed), copies appended (faces and colours of their object's ``surfaces`` entry). Faces joining
+    an original that moves to anything else (an object picked from a mesh that runs on into the floor) are dropped:
+    they would stretch across the move."""
     keep = np.ones(mesh.n_vertices, dtype=bool)
     for obj, idx in zip(spec.objects, selected):
         keep[idx] = not obj.removed
     base, index = mesh.submesh(keep)
+    owner, moved = np.full(base.n_vertices, -1), []
+    for o, (obj, idx, part, instances) in enumerate(zip(spec.objects, selected, surfaces, placed)):
+        if not obj.removed:
+            owner[index[idx]] = o
+            if not (instances[0].surface == part.vertices).all():
+                moved.append(o)
+    corners = owner[base.faces]
+    joining = (corners != corners[:, :1]).any(1) & np.isin(corners, moved).any(1)
     meshes = []
     for f in range(n):
-        vertices, faces, colors = [base.vertices.copy()], [base.faces], [base.vertex_colors]
+        vertices, faces, colors = [base.vertices.copy()], [base.faces[~joining]], [base.vertex_colors]
         offset = len(base.vertices)
         for obj, idx, part, instances in zip(spec.objects, selected, surfaces, placed):
             for k, inst in enumerate(instances):

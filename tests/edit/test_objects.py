@@ -329,3 +329,23 @@ def test_vacated_fill_copies_neighbouring_floor_over_the_footprint(scene, tmp_pa
     assert not untouched.empty.any() and torch.equal(untouched.points, elsewhere.float())
     report = result.report["objects"][0]
     assert report["vacated"] == "fill" and report["fill"]["instance"] == "box~fill" and report["fill"]["tets"] > 0
+
+
+def test_faces_joining_a_moved_object_to_the_rest_are_dropped_from_the_scene_mesh():
+    """A strip of 4 quads; the object is its last two columns of vertices, joined to the rest by faces. Moved, those
+    faces are left out of ``deformed_mesh.ply`` (they would stretch across the move); at rest every face stays."""
+    from types import SimpleNamespace
+
+    from nerfedit_plugin.edit.objects import _scene_frames
+
+    vertices = np.stack([np.repeat(np.arange(5.0), 2), np.tile([0.0, 1.0], 5), np.zeros(10)], 1)
+    quads = [(2 * i, 2 * i + 2, 2 * i + 3, 2 * i + 1) for i in range(4)]
+    mesh = SurfaceMesh(vertices, np.array([f for a, b, c, d in quads for f in ((a, b, c), (a, c, d))]))
+    idx = np.arange(6, 10)  # x = 3, 4: the last quad, joined to the rest by the third
+    part = mesh.submesh(np.isin(np.arange(10), idx))[0]
+    spec = SimpleNamespace(objects=[SimpleNamespace(removed=False)])
+    for shift, faces in ((0.0, 8), (1.0, 6)):
+        placed = [[SimpleNamespace(surface=(part.vertices + [0.0, 0.0, shift])[None])]]
+        (scene,) = _scene_frames(mesh, [idx], [part], spec, placed, 1)
+        assert len(scene.faces) == faces
+        assert np.linalg.norm(np.diff(scene.vertices[scene.faces], axis=1), axis=2).max() < 1.5
