@@ -45,8 +45,8 @@ class EditArgs:
     camera_distance: float | None = None
     """Mean camera-to-object distance; sets the cage offset (5% of it). Default: from the run's cameras."""
     base: Path | None = None
-    """Edit the result of an earlier edit (its folder): its deformed mesh is the rest, and OUT/deformation.npz chains
-    both deformations (render it on the same run)."""
+    """Edit the result of an earlier edit (its folder or deformation.npz): its deformed mesh is the rest, and
+    OUT/deformation.npz chains both deformations (render it on the same run)."""
     base_frame: int | None = None
     """With --base: the frame of a sequence whose deformed mesh is the rest (default: its last)."""
     frame: Literal["world", "capture"] = "world"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 from nerfedit_plugin.cli.common import Command, print_table
@@ -61,7 +62,14 @@ def evaluate(args: EvalArgs) -> None:
         ],
     )
     if args.json_out is not None:
-        write_text(args.json_out, json.dumps(result, indent=2))
+        write_text(args.json_out, json.dumps(_json_numbers(result), indent=2, allow_nan=False))
+
+
+def _json_numbers(value):
+    """``value`` with non-finite floats as None: JSON has no inf (the PSNR of identical images) or NaN."""
+    if isinstance(value, dict):
+        return {k: _json_numbers(v) for k, v in value.items()}
+    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 COMMAND = Command("eval", EvalArgs, evaluate)

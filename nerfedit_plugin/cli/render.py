@@ -152,8 +152,9 @@ def render(args: RenderArgs) -> None:
     if args.trajectory == "views":
         if args.cameras is None:
             raise NerfEditError("--cameras: needed by --trajectory views (a transforms file or dataset folder)")
-        if args.video or args.executor != "local":
-            raise NerfEditError("--video and --executor ray: for animations (--trajectory fixed, orbit or path)")
+        for given, flag in ((args.video, "--video"), (args.executor != "local", "--executor ray")):
+            if given:
+                raise NerfEditError(f"{flag}: for animations (--trajectory fixed, orbit or path), not views")
         out = render_run(
             run, args.cameras, args.deformation, frames, args.out, args.overwrite, args.supersample,
             recorded(args), args.resume, args.frame_of_cameras, args.downscale,

@@ -33,7 +33,8 @@ class ViewArgs:
     """Layers: mesh, deformed, proxy, deformed-proxy, handles, and what the edit's deformer adds (cage); default:
     all but proxy."""
     screenshot: Path | None = None
-    """Render offscreen into this PNG instead of opening a window (works without a display)."""
+    """Render offscreen into this PNG instead of opening a window (works without a display): with --edit, the edit's
+    layers; with --mesh or --run, the editor's state (the rest mesh, and --spec settled beside it when it exists)."""
     width: int = 960
     """Screenshot width in pixels."""
     height: int = 540
@@ -115,8 +116,22 @@ def view(args: ViewArgs) -> None:
     if args.edit is None and args.screenshot is None:
         edit(args)
         return
-    if args.run is not None:
-        raise NerfEditError("view: --run opens the editor; to look at an edit give --edit EDIT_DIR")
+    if args.edit is None:  # the editor's state, offscreen: the rest mesh, and --spec settled beside it
+        from nerfedit_plugin.viewer.editor_state import EditorState
+        from nerfedit_plugin.viewer.layers import settled_geometries
+
+        run, rest = _source(args)
+        deformed = None
+        if args.spec.is_file():
+            source_to_world = run.source_transform() if run is not None else None
+            frames = EditorState.open(args.deformer, rest, args.spec, _keys(args), source_to_world).settled
+            if args.frame >= len(frames):
+                raise NerfEditError(f"--frame: {args.frame} out of range for the {len(frames)} frame(s) of {args.spec}")
+            deformed = rest.with_vertices(frames[args.frame])
+        up = args.up or (run_up(run) if run is not None else None) or Y_UP
+        path = screenshot(settled_geometries(rest, deformed, args.show), args.screenshot, args.width, args.height, up)
+        console.print(f"screenshot → {path}")
+        return
     mesh, run = args.mesh, None
     if mesh is None and args.edit is not None:
         mesh, run_path = edit_source(args.edit)
@@ -135,15 +150,10 @@ def view(args: ViewArgs) -> None:
 
 def edit(args: ViewArgs) -> None:
     """Open the editor on ``--mesh`` or ``--run`` (the run's mesh; its field renders the edit)."""
-    from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.run import open_run
     from nerfedit_plugin.viewer.backends import editing_backend
     from nerfedit_plugin.viewer.editor_state import EditorState
 
-    if (args.mesh is None) == (args.run is None):
-        raise NerfEditError("view: give --mesh MESH or --run RUN to edit (or --edit EDIT_DIR to look at an edit)")
-    run = open_run(args.run) if args.run is not None else None
-    rest = run.mesh() if run is not None else SurfaceMesh.load(args.mesh)
+    run, rest = _source(args)
     script = None
     if args.script is not None:
         try:
@@ -157,16 +167,31 @@ def edit(args: ViewArgs) -> None:
     from nerfedit_plugin.viewer.editor import run_editor
     from nerfedit_plugin.viewer.field_preview import FieldPreview
 
-    keys = {key: path.resolve() for key, path in (("cage", args.cage), ("skeleton", args.skeleton)) if path}
     if args.spec.is_file():
         source_to_world = run.source_transform() if run is not None else None
-        state = EditorState.open(args.deformer, rest, args.spec, keys, source_to_world)
+        state = EditorState.open(args.deformer, rest, args.spec, _keys(args), source_to_world)
         console.print(f"{args.spec}: {len(state.handles)} handle(s) loaded")
     else:
-        state = EditorState(editing_backend(args.deformer, rest, keys), frames=args.frames)
+        state = EditorState(editing_backend(args.deformer, rest, _keys(args)), frames=args.frames)
     up = args.up or (run_up(run) if run is not None else None) or Y_UP
     preview = FieldPreview(run, rest) if run is not None else None
     run_editor(state, preview=preview, spec_path=args.spec, up=up, script=script)
+
+
+def _source(args: ViewArgs) -> tuple[Any, Any]:
+    """``(run or None, rest mesh)`` of the editor: ``--mesh``, or ``--run``'s mesh."""
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.io.run import open_run
+
+    if (args.mesh is None) == (args.run is None):
+        raise NerfEditError("view: give --mesh MESH or --run RUN to edit (or --edit EDIT_DIR to look at an edit)")
+    run = open_run(args.run) if args.run is not None else None
+    return run, run.mesh() if run is not None else SurfaceMesh.load(args.mesh)
+
+
+def _keys(args: ViewArgs) -> dict:
+    """The deformer files given on the command line (``--cage``, ``--skeleton``), resolved."""
+    return {key: path.resolve() for key, path in (("cage", args.cage), ("skeleton", args.skeleton)) if path}
 
 
 COMMAND = Command("view", ViewArgs, view)

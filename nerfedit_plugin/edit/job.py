@@ -88,9 +88,13 @@ class Base:
 
     @classmethod
     def of(cls, folder: str | os.PathLike, frame: int | None = None) -> Base:
-        """``folder`` (an edit folder) at ``frame`` (default its last); a folder without ``deformation.npz`` or a
-        frame out of range is a :class:`NerfEditError`."""
+        """``folder`` (an edit folder, or its ``deformation.npz``) at ``frame`` (default its last); a missing path,
+        a folder without ``deformation.npz`` or a frame out of range is a :class:`NerfEditError`."""
         folder = Path(folder)
+        if folder.is_file() and folder.name == "deformation.npz":
+            folder = folder.parent
+        if not folder.exists():
+            raise NerfEditError(f"--base {folder}: no such edit folder")
         if not (folder / "deformation.npz").is_file():
             raise NerfEditError(f"--base {folder}: not an edit folder (no deformation.npz)")
         n = len(sorted(folder.glob("deformed_mesh*.ply")))

@@ -93,7 +93,7 @@ def edit_geometries(
     :data:`DEFAULT_LAYERS` and every overlay. Layers the folder does not hold are left out."""
     given = layers is not None
     layers = set(layers) if given else set(DEFAULT_LAYERS)
-    shift = np.array([1.2 * float(np.ptp(mesh.vertices[:, 0])), 0.0, 0.0])
+    shift = _beside(mesh)
     out = [_triangles(mesh)] if "mesh" in layers else []
     if edit_dir is None:
         _check_layers(layers, LAYERS)
@@ -126,6 +126,22 @@ def edit_geometries(
         handles = _handles(edit_dir / spec, deformer, deformer.handle_points(edit_dir, mesh))
         out += [handles] if handles is not None else []
     return out
+
+
+def settled_geometries(mesh: SurfaceMesh, deformed: SurfaceMesh | None, layers: Iterable[str] | None = None) -> list:
+    """The editor's state as the ``mesh`` and ``deformed`` layers: the rest ``mesh`` and, beside it as in
+    :func:`edit_geometries`, its ``deformed`` copy (None: the rest mesh alone). ``None`` layers: both."""
+    layers = set(layers) if layers is not None else {"mesh", "deformed"}
+    _check_layers(layers, ("mesh", "deformed"))
+    out = [_triangles(mesh)] if "mesh" in layers else []
+    if deformed is not None and "deformed" in layers:
+        out.append(_triangles(deformed.with_vertices(deformed.vertices + _beside(mesh))))
+    return out
+
+
+def _beside(mesh: SurfaceMesh) -> np.ndarray:
+    """The shift that shows a deformed copy beside the rest ``mesh`` (along x, 1.2 × its width)."""
+    return np.array([1.2 * float(np.ptp(mesh.vertices[:, 0])), 0.0, 0.0])
 
 
 def _check_layers(layers: set[str], known: tuple[str, ...]) -> None:

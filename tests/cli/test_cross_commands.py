@@ -87,8 +87,17 @@ def test_render_of_the_run_is_scored_by_eval_against_the_dataset(flow, capsys):
     assert (flow / "renders" / "config.yml").is_file()  # next to the PNGs, ignored by eval
     for gt in (flow / "data" / "test", flow / "data"):  # the test images, or the dataset (its test split)
         run("eval", "--pred", flow / "renders", "--gt", gt, "--json-out", flow / "scores.json")
-        assert json.loads((flow / "scores.json").read_text())["mean"]["psnr"] > 25  # exact field, same cameras
+        mean = json.loads((flow / "scores.json").read_text())["mean"]  # exact field, same cameras: PSNR > 25 or inf
+        assert (mean["psnr"] is None or mean["psnr"] > 25) and mean["ssim"] > 0.99
     capsys.readouterr()
+    run("eval", "--pred", flow / "renders", "--gt", flow / "renders", "--json-out", flow / "same.json")
+    assert "inf" in capsys.readouterr().out  # identical images: an infinite PSNR in the table, null in strict JSON
+
+    def strict(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    scores = json.loads((flow / "same.json").read_text(), parse_constant=strict)
+    assert scores["mean"]["psnr"] is None and scores["mean"]["ssim"] == 1.0
 
 
 def test_render_of_the_edit_and_eval_of_an_animated_render(flow, capsys):

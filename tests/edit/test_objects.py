@@ -204,6 +204,11 @@ def test_an_edit_of_an_edit_must_be_on_the_run_its_base_was_made_on(tmp_path):
     Base.of(chained).check_run(tmp_path / "run_b")
     (base / "config.yml").write_text(yaml.safe_dump({"deformer": "arap", "edit": "e.json"}))  # the demo's record
     Base.of(chained).check_run(tmp_path / "run_b")
+    assert Base.of(chained / "deformation.npz").folder == chained  # the folder's deformation.npz names it too
+    with pytest.raises(NerfEditError, match=f"--base {tmp_path / 'nope'}: no such edit folder"):
+        Base.of(tmp_path / "nope")
+    with pytest.raises(NerfEditError, match=f"--base {tmp_path / 'run_a'}: not an edit folder"):
+        Base.of(tmp_path / "run_a")
 
 
 def test_a_scene_edit_folder_keeps_the_selection_files_its_spec_names(scene, tmp_path, proxy_cache):

@@ -67,6 +67,33 @@ def test_screenshot_renders_rest_and_edit_side_by_side(edit_dir, capsule, tmp_pa
     assert drawn[:160].any() and drawn[160:].any()  # rest on the left, edit on the right
 
 
+def test_screenshot_of_the_editor_state_shows_the_spec_settled(edit_dir, tmp_path, monkeypatch):
+    """``view --mesh M --spec S --screenshot`` renders the editor's state offscreen: the rest mesh, and the spec
+    settled beside it (the ``deformed_mesh.ply`` ``nerfedit edit`` wrote for S); no spec: the rest mesh alone."""
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.viewer.editor_state import EditorState
+    from nerfedit_plugin.viewer.layers import settled_geometries
+
+    mesh = edit_dir.parent / "capsule.ply"
+    state = EditorState.open("arap", SurfaceMesh.load(mesh), edit_dir.parent / "edit.json")
+    np.testing.assert_allclose(state.settled[0], SurfaceMesh.load(edit_dir / "deformed_mesh.ply").vertices, atol=1e-9)
+    assert len(settled_geometries(state.mesh, None)) == 1 and len(settled_geometries(state.mesh, state.mesh)) == 2
+    monkeypatch.chdir(tmp_path)  # no edit.json here: the default --spec does not exist
+    size = ["--width", "320", "--height", "200"]
+    assert main(["view", "--mesh", str(mesh), "--screenshot", "bare.png", *size]) == 0
+    spec = ["--spec", str(edit_dir.parent / "edit.json")]
+    assert main(["view", "--mesh", str(mesh), *spec, "--screenshot", "settled.png", *size]) == 0
+    columns = [(np.abs(image - image[0, 0]).sum(-1) > 30).any(0) for image in map(pixels, ("bare.png", "settled.png"))]
+    assert columns[0][100:220].any() and not columns[0][220:].any()  # the rest mesh alone, in the middle
+    assert columns[1][:160].any() and columns[1][160:].any()  # rest on the left, the settled spec on the right
+    assert main(["view", "--mesh", str(mesh), *spec, "--frame", "3", "--screenshot", "x.png"]) == 2
+    assert not (tmp_path / "x.png").exists()
+
+
+def pixels(path):
+    return skimage.io.imread(path)[..., :3].astype(float)
+
+
 def test_view_errors(edit_dir, tmp_path, capsys):
     assert (
         main(["view", "--edit", str(tmp_path), "--mesh", "sample:bone", "--screenshot", str(tmp_path / "a.png")]) == 2
