@@ -15,11 +15,11 @@ the same registered images with their true cameras mapped into the recovered mod
 foreground box: same images, same held-out split — every 8th —, same frame and box), and the PSNRs over all held-out
 views are compared (target: recovered ≥ true − 1 dB). With ``--edit-seconds S`` the workflow of docs/captures.md
 then runs through the command line on the recovered poses (:func:`edit_capture_run`): ``nerfedit train --field
-FIELD`` (``--edit-field``, default ``neus``: the field to extract and edit) for S CPU seconds, extract, the bunny
+FIELD`` (``--edit-field``, default ``nerf``) for S CPU seconds, extract (at ``--edit-level``), the bunny
 moved by an ``objects`` spec, the held-out views rendered unedited and edited, and an orbit video of the edit.
 
 Usage: ``python bench/bench_capture.py [--views 48] [--resolution 256] [--seconds 0] [--edit-seconds 0]
-[--edit-field neus] [--downscale 2] [--out DIR]``.
+[--edit-field nerf] [--edit-level L] [--downscale 2] [--out DIR]``.
 """
 
 from __future__ import annotations
@@ -157,15 +157,22 @@ def nerfedit(*argv) -> float:
 
 
 def edit_capture_run(
-    out: Path, workspace: Path, truth: dict, downscale: int, field: str, seconds: float, shift: float = 0.25
+    out: Path,
+    workspace: Path,
+    truth: dict,
+    downscale: int,
+    field: str,
+    seconds: float,
+    level: float | None = None,
+    shift: float = 0.25,
 ) -> dict:
     """docs/captures.md steps 3–7 on the recovered poses, through the command line: train ``field`` for ``seconds``
     CPU seconds (images downscaled by ``downscale``), extract the scene's objects (``--drop-plane --drop-floaters
-    0.05``), move the bunny by ``shift`` × the foreground box's size away from the cow (an ``objects`` spec
-    selecting the component of the mesh vertex nearest to the bunny's true centre, mapped into the run's frame by
-    the alignment), render the held-out views unedited and edited, and an orbit of the edit (24 shots, 128 px, mp4).
-    Returns each step's wall seconds, the held-out PSNR, the mesh's and the selected bunny's vertex counts and the
-    fraction of held-out pixels the edit changed (by more than 10/255)."""
+    0.05``, at ``level`` when given), move the bunny by ``shift`` × the foreground box's size away from the cow (an
+    ``objects`` spec selecting the component of the mesh vertex nearest to the bunny's true centre, mapped into the
+    run's frame by the alignment), render the held-out views unedited and edited, and an orbit of the edit (24 shots,
+    128 px, mp4). Returns each step's wall seconds, the held-out PSNR, the mesh's and the selected bunny's vertex
+    counts and the fraction of held-out pixels the edit changed (by more than 10/255)."""
     from nerfedit_plugin.data.datasets import read_image
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
@@ -183,6 +190,7 @@ def edit_capture_run(
     box = np.asarray(recovered.meta["aabb"])
     away = (bunny - cow) / np.linalg.norm(bunny - cow) * shift * float(np.linalg.norm(box[1] - box[0]))
     extract = ["extract", "--run", run, "--resolution", 192, "--drop-plane", "--drop-floaters", 0.05]
+    extract += [] if level is None else ["--level", level]
     result["extract_s"] = nerfedit(*extract)
     mesh = SurfaceMesh.load(run / "mesh.ply")
     near = mesh.vertices[np.argmin(np.linalg.norm(mesh.vertices - bunny, axis=1))]  # a point picked on the mesh
@@ -219,7 +227,8 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--seconds", type=float, default=0.0)
     parser.add_argument("--edit-seconds", type=float, default=0.0, help="train, extract, edit and render (0: skip)")
-    parser.add_argument("--edit-field", default="neus", help="the field the edit workflow trains")
+    parser.add_argument("--edit-field", default="nerf", help="the field the edit workflow trains")
+    parser.add_argument("--edit-level", type=float, default=None, help="the extraction level (default: the field's)")
     parser.add_argument("--downscale", type=int, default=2, help="train on the images downscaled by this factor")
     parser.add_argument("--out", type=Path, default=Path("/tmp/nerfedit-bench-capture"))
     parser.add_argument("--reuse", action="store_true", help="keep the workspace of an earlier run (no new SfM)")
@@ -239,7 +248,8 @@ def main() -> None:
         result["psnr_recovered"] = train_psnr(workspace, args.out / "run-recovered", args.seconds, args.downscale)
         result["psnr_true"] = train_psnr(truth_data, args.out / "run-true", args.seconds, args.downscale)
     if args.edit_seconds > 0:
-        edit = edit_capture_run(args.out, workspace, truth, args.downscale, args.edit_field, args.edit_seconds)
+        field, seconds, level = args.edit_field, args.edit_seconds, args.edit_level
+        edit = edit_capture_run(args.out, workspace, truth, args.downscale, field, seconds, level)
         result["edit"] = edit
     print(json.dumps(result, indent=2))
 
