@@ -40,8 +40,8 @@ class ViewArgs:
     height: int = 540
     """Screenshot height in pixels."""
     up: tuple[float, float, float] | None = None
-    """World up direction of the view; default: the run's when the mesh is a run's (its dataset's cameras: z for
-    datasets of `nerfedit generate`), else y (the samples' convention)."""
+    """World up direction of the view; default: that of the run's dataset, or of the dataset a --mesh file sits in
+    (z for datasets of `nerfedit generate`, else their cameras' up), else y (the samples' convention)."""
 
     spec: Path = Path("edit.json")
     """Editor: where Save (S) writes the edit spec (selection files beside it); when it exists, its handles (and the
@@ -88,13 +88,17 @@ def edit_source(edit: Path) -> tuple[str | None, Path | None]:
 
 
 def run_up(run: Any) -> tuple[float, float, float] | None:
-    """The up direction of a run's world: z for a dataset of `nerfedit generate` (its config.yml records the
-    generator's options; its world is z-up by construction), else the consensus of the training cameras
-    (:func:`~nerfedit_plugin.data.datasets.world_up`); a mesh field's mesh shares the world of the dataset it sits in
-    (a generated dataset's mesh.ply), else None (unknown)."""
+    """The up direction of a run's world (:func:`data_up` of its data)."""
+    return data_up(Path(run.data))
+
+
+def data_up(data: Path) -> tuple[float, float, float] | None:
+    """The up direction of a dataset's world, ``data`` its folder, a transforms file or a mesh file in it: z for a
+    dataset of `nerfedit generate` (its config.yml records the generator's options; its world is z-up by
+    construction), else the consensus of the training cameras (:func:`~nerfedit_plugin.data.datasets.world_up`); a
+    mesh shares the world of the dataset it sits in (a generated dataset's mesh.ply), else None (unknown)."""
     from nerfedit_plugin.data.datasets import read_transforms, transforms_file, world_up
 
-    data = Path(run.data)
     folder = data.parent if data.is_file() else data
     generated = folder / CONFIG
     if generated.is_file():
@@ -106,6 +110,16 @@ def run_up(run: Any) -> tuple[float, float, float] | None:
     except NerfEditError:
         return None
     return world_up(transforms.cameras)
+
+
+def _up(args: ViewArgs, run: Any, mesh: str | None) -> tuple[float, float, float]:
+    """``--up``, else the up of the run's dataset or of the dataset the mesh file sits in, else y."""
+    if args.up is not None:
+        return args.up
+    source = Path(run.data) if run is not None else None
+    if source is None and mesh is not None and not mesh.startswith("sample:"):
+        source = Path(mesh)
+    return (data_up(source) if source is not None else None) or Y_UP
 
 
 def view(args: ViewArgs) -> None:
@@ -128,7 +142,7 @@ def view(args: ViewArgs) -> None:
             if args.frame >= len(frames):
                 raise NerfEditError(f"--frame: {args.frame} out of range for the {len(frames)} frame(s) of {args.spec}")
             deformed = rest.with_vertices(frames[args.frame])
-        up = args.up or (run_up(run) if run is not None else None) or Y_UP
+        up = _up(args, run, args.mesh)
         path = screenshot(settled_geometries(rest, deformed, args.show), args.screenshot, args.width, args.height, up)
         console.print(f"screenshot → {path}")
         return
@@ -140,7 +154,7 @@ def view(args: ViewArgs) -> None:
     if mesh is None and run is None:
         raise NerfEditError("view: give --mesh MESH (or --edit EDIT_DIR of an edit made with --mesh or --run)")
     rest = run.mesh() if run is not None else SurfaceMesh.load(mesh)
-    up = args.up or (run_up(run) if run is not None else None) or Y_UP
+    up = _up(args, run, mesh)
     geometries = edit_geometries(rest, args.edit, args.frame, args.show)
     if args.screenshot is not None:
         console.print(f"screenshot → {screenshot(geometries, args.screenshot, args.width, args.height, up)}")
@@ -164,8 +178,11 @@ def edit(args: ViewArgs) -> None:
             raise NerfEditError(f'{args.script}: expected a JSON list of steps ({{"pick": [...]}}, ...)')
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise NerfEditError("view: the editor needs a display (set DISPLAY, or run it under xvfb-run)")
-    from nerfedit_plugin.viewer.editor import run_editor
+    from nerfedit_plugin.viewer.editor import check_script, run_editor
     from nerfedit_plugin.viewer.field_preview import FieldPreview
+
+    if script is not None:
+        check_script(script, str(args.script))
 
     if args.spec.is_file():
         source_to_world = run.source_transform() if run is not None else None
@@ -173,7 +190,7 @@ def edit(args: ViewArgs) -> None:
         console.print(f"{args.spec}: {len(state.handles)} handle(s) loaded")
     else:
         state = EditorState(editing_backend(args.deformer, rest, _keys(args)), frames=args.frames)
-    up = args.up or (run_up(run) if run is not None else None) or Y_UP
+    up = _up(args, run, args.mesh)
     preview = FieldPreview(run, rest) if run is not None else None
     run_editor(state, preview=preview, spec_path=args.spec, up=up, script=script)
 

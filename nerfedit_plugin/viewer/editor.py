@@ -18,8 +18,9 @@ of ``{"pick": [i, …]}``, ``{"click": [x, y]}``, ``{"box": [x0, y0, x1, y1]}``,
 px}``, ``{"grow": r}``, ``{"mark": "fixed" | "moving"}``, ``{"drag": [dx, dy]}``, ``{"translate": [x, y, z]}``,
 ``{"rotate": {"axis": […], "degrees": d, "pivot": […]}}``, ``{"scale": k}``, ``{"undo": true}``, ``{"redo": true}``,
 ``{"settle": true}``, ``{"render": true}``, ``{"save": "edit.json"}``, ``{"screenshot": "view.png"}``,
-``{"layer": {"rest": true, …}}``, ``{"frame": i}``, ``{"quit": true}`` (pixels in the 3-D view's coordinates); each
-move is settled (on release) before the next step.
+``{"layer": {"rest": true, …}}``, ``{"frame": i}``, ``{"frames": n}``, ``{"quit": true}`` (pixels in the 3-D view's
+coordinates); each move is settled (on release) before the next step. A step of another kind is an error before the
+window opens (:func:`check_script`).
 """
 
 from __future__ import annotations
@@ -583,6 +584,24 @@ class Editor:
         if kind not in actions:
             raise NerfEditError(f"script: unknown step {json.dumps(step)}")
         return actions[kind]()
+
+
+SCRIPT_STEPS = (
+    "pick", "click", "box", "brush", "grow", "mark", "drag", "translate", "rotate", "scale", "undo", "redo", "settle",
+    "render", "save", "screenshot", "layer", "frame", "frames", "quit",
+)  # fmt: skip
+"""The kinds of script step (the module docstring); ``brush`` may also give a ``radius``."""
+
+
+def check_script(steps: list[dict], where: str) -> None:
+    """A :class:`NerfEditError` naming ``where`` and the step for the first step of no known kind."""
+    for i, step in enumerate(steps):
+        kind = next(iter(step))
+        extra = set(step) - {kind} - ({"radius"} if kind == "brush" else set())
+        if kind not in SCRIPT_STEPS or extra:
+            raise NerfEditError(
+                f"{where}: step {i} {json.dumps(step)}: unknown step (expected one of {', '.join(SCRIPT_STEPS)})"
+            )
 
 
 def _mesh(vertices: np.ndarray, faces: np.ndarray, color) -> o3d.t.geometry.TriangleMesh:
