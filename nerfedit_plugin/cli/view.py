@@ -43,9 +43,10 @@ class ViewArgs:
     """World up direction of the view; default: that of the run's dataset, or of the dataset a --mesh file sits in
     (z for datasets of `nerfedit generate`, else their cameras' up), else y (the samples' convention)."""
 
-    spec: Path = Path("edit.json")
-    """Editor: where Save (S) writes the edit spec (selection files beside it); when it exists, its handles (and the
-    deformer's files) are loaded to keep editing."""
+    spec: Path | None = None
+    """Editor: where Save (S) writes the edit spec (selection files beside it; default edit.json); when it exists,
+    its handles (and the deformer's files) are loaded to keep editing. With --screenshot: the spec shown settled
+    (only when given)."""
     deformer: str = "arap"
     """Editor: arap (handles on mesh vertices), cage (on the cage's vertices) or skeleton (joints of --skeleton)."""
     cage: Path | None = None
@@ -102,7 +103,10 @@ def data_up(data: Path) -> tuple[float, float, float] | None:
     folder = data.parent if data.is_file() else data
     generated = folder / CONFIG
     if generated.is_file():
-        record = yaml.safe_load(generated.read_text()) or {}
+        try:
+            record = yaml.safe_load(generated.read_text()) or {}
+        except (OSError, UnicodeDecodeError, yaml.YAMLError):  # another tool's config.yml: no say on the up
+            record = {}
         if isinstance(record, dict) and {"up_axis", "n_train", "resolution"} <= record.keys():
             return (0.0, 0.0, 1.0)
     try:
@@ -136,7 +140,7 @@ def view(args: ViewArgs) -> None:
 
         run, rest = _source(args)
         deformed = None
-        if args.spec.is_file():
+        if args.spec is not None:
             source_to_world = run.source_transform() if run is not None else None
             frames = EditorState.open(args.deformer, rest, args.spec, _keys(args), source_to_world).settled
             if args.frame >= len(frames):
@@ -184,15 +188,16 @@ def edit(args: ViewArgs) -> None:
     if script is not None:
         check_script(script, str(args.script))
 
-    if args.spec.is_file():
+    spec = args.spec or Path("edit.json")
+    if spec.is_file():
         source_to_world = run.source_transform() if run is not None else None
-        state = EditorState.open(args.deformer, rest, args.spec, _keys(args), source_to_world)
-        console.print(f"{args.spec}: {len(state.handles)} handle(s) loaded")
+        state = EditorState.open(args.deformer, rest, spec, _keys(args), source_to_world)
+        console.print(f"{spec}: {len(state.handles)} handle(s) loaded")
     else:
         state = EditorState(editing_backend(args.deformer, rest, _keys(args)), frames=args.frames)
     up = _up(args, run, args.mesh)
     preview = FieldPreview(run, rest) if run is not None else None
-    run_editor(state, preview=preview, spec_path=args.spec, up=up, script=script)
+    run_editor(state, preview=preview, spec_path=spec, up=up, script=script)
 
 
 def _source(args: ViewArgs) -> tuple[Any, Any]:

@@ -29,7 +29,8 @@ def reconstruct(
     images = workspace / "images"
     if not images.is_dir():
         raise NerfEditError(f"{workspace}: no images/ folder to reconstruct")
-    level, pycolmap.logging.minloglevel = pycolmap.logging.minloglevel, 1  # warnings up: INFO is ~300 lines a run
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = max(level, 1)  # warnings up: INFO is ~300 lines a run
     try:
         with atomic_dir(workspace / "sparse", overwrite) as stage, tempfile.TemporaryDirectory() as scratch:
             database = Path(scratch) / "database.db"

@@ -320,23 +320,28 @@ def _scene_frames(
 ):
     """The edited scene's surface per frame: unselected geometry as it is, each object's original in its place
     (dropped when removed), copies appended (faces and colours of their object's ``surfaces`` entry). Faces joining
-    an original that moves to anything else (an object picked from a mesh that runs on into the floor) are dropped:
-    they would stretch across the move."""
+    an original to anything else (an object picked from a mesh that runs on into the floor) are dropped, in every
+    frame, where a frame stretches one of their edges to more than twice its rest length: they would span the move."""
     keep = np.ones(mesh.n_vertices, dtype=bool)
     for obj, idx in zip(spec.objects, selected):
         keep[idx] = not obj.removed
     base, index = mesh.submesh(keep)
-    owner, moved = np.full(base.n_vertices, -1), []
-    for o, (obj, idx, part, instances) in enumerate(zip(spec.objects, selected, surfaces, placed)):
+    owner, posed = np.full(base.n_vertices, -1), np.repeat(base.vertices[None], n, axis=0)
+    for o, (obj, idx, instances) in enumerate(zip(spec.objects, selected, placed)):
         if not obj.removed:
             owner[index[idx]] = o
-            if not (instances[0].surface == part.vertices).all():
-                moved.append(o)
+            frames = instances[0].surface
+            posed[:, index[idx]] = frames[np.minimum(np.arange(n), len(frames) - 1)]
     corners = owner[base.faces]
-    joining = (corners != corners[:, :1]).any(1) & np.isin(corners, moved).any(1)
+    joining = np.flatnonzero((corners != corners[:, :1]).any(1))
+    rest = np.linalg.norm(base.vertices[base.faces[joining]] - base.vertices[base.faces[joining][:, [1, 2, 0]]], axis=2)
+    edges = posed[:, base.faces[joining]] - posed[:, base.faces[joining][:, [1, 2, 0]]]
+    stretched = (np.linalg.norm(edges, axis=3) > 2.0 * rest + 1e-12).any(axis=(0, 2))
+    dropped = np.zeros(len(base.faces), dtype=bool)
+    dropped[joining[stretched]] = True
     meshes = []
     for f in range(n):
-        vertices, faces, colors = [base.vertices.copy()], [base.faces[~joining]], [base.vertex_colors]
+        vertices, faces, colors = [base.vertices.copy()], [base.faces[~dropped]], [base.vertex_colors]
         offset = len(base.vertices)
         for obj, idx, part, instances in zip(spec.objects, selected, surfaces, placed):
             for k, inst in enumerate(instances):
@@ -438,7 +443,7 @@ def run_objects_edit(
             names = ["deformed_mesh.ply"] if n_frames == 1 else [f"deformed_mesh_{i:04d}.ply" for i in range(n_frames)]
             for name, scene in zip(names, scenes):
                 scene.save(stage / name)
-            keys = {k for obj in spec.objects for inst in obj.instances if inst.edit for k in inst.edit.file_keys}
+            keys = {k: v for obj in spec.objects for i in obj.instances if i.edit for k, v in i.edit.file_keys.items()}
             copy_spec_file(edit, stage, keys)
             write_config(
                 stage / "config.yml", record if record is not None else {"deformer": default_deformer, "lift": lift}

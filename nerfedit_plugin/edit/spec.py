@@ -81,9 +81,9 @@ class EditSpec:
     frame: str = "world"
     """The frame of the handles' boxes, spheres and transforms: ``world`` (the rest mesh's own coordinates) or
     ``source`` (the mesh the data was generated from: :meth:`in_world` maps them)."""
-    file_keys: set[str] = field(default_factory=set, compare=False, repr=False)
-    """The top-level keys :meth:`path` / :meth:`paths` read files from (filled as the deformer binds): what
-    :func:`copy_spec_file` writes absolute."""
+    file_keys: dict[str, str] = field(default_factory=dict, compare=False, repr=False)
+    """The top-level keys files were read from as the deformer bound, each with how: ``"path"`` (one file) or
+    ``"paths"`` (a list, or one name globbed): what :func:`copy_spec_file` writes absolute."""
 
     def in_world(self, source_to_world: np.ndarray) -> EditSpec:
         """This spec with its handles mapped from the ``source`` frame into the world by the similarity
@@ -136,7 +136,7 @@ class EditSpec:
         """Resolve the file named by top-level ``key`` relative to the spec's folder; it must exist."""
         if key not in self.extra:
             raise spec_error(self.source, key, "missing")
-        self.file_keys.add(key)
+        self.file_keys.setdefault(key, "path")
         value = self.extra[key]
         if not isinstance(value, (str, os.PathLike)):
             raise spec_error(self.source, key, f"expected a file path, got {value!r}")
@@ -150,10 +150,10 @@ class EditSpec:
 
     def paths(self, key: str) -> list[Path]:
         """Resolve a list of files or one glob pattern under ``key`` (sorted); at least one must exist."""
-        self.file_keys.add(key)
+        self.file_keys[key] = "paths"
         value = self.extra.get(key)
         if isinstance(value, str):
-            pattern = os.path.join(self.base_dir, value)  # an absolute pattern stays absolute
+            pattern = os.path.join(glob.escape(str(self.base_dir)), value)  # an absolute pattern stays absolute
             found = sorted(Path(p).resolve() for p in glob.glob(pattern)) if any(ch in value for ch in "*?[") else None
             if found is None:
                 return [self.path(key)]
@@ -273,13 +273,13 @@ def _file_selections(document: Any) -> Iterator[dict]:
             yield from _file_selections(value)
 
 
-def copy_spec_file(path: str | os.PathLike, out_dir: Path, file_keys: Iterable[str] = ()) -> None:
+def copy_spec_file(path: str | os.PathLike, out_dir: Path, file_keys: dict[str, str] | None = None) -> None:
     """Copy the (validated) spec file ``path`` into ``out_dir`` so that the copy reads as the original does: the
     selection files it names inside its folder are copied to the same relative paths; a selection named with a
     ``..`` (``../x``), and the relative files, lists and globs of ``file_keys`` (the deformer's inputs, at the top
     level and in scene objects' edits: :attr:`EditSpec.file_keys`), are written into the copy as absolute paths
     (then the copy is the spec re-written: comments are lost)."""
-    path = Path(path)
+    path, file_keys = Path(path), file_keys or {}
     document = read_spec_file(path)
     folder = path.parent if path.parent.is_absolute() else Path.cwd() / path.parent  # names resolve as when read
     outside = False
@@ -294,12 +294,20 @@ def copy_spec_file(path: str | os.PathLike, out_dir: Path, file_keys: Iterable[s
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(path.parent / name, target)
     for edit in _edits(document):
-        for key in set(file_keys) & edit.keys():
+        for key in file_keys.keys() & edit.keys():
             value = edit[key]
-            names = value if isinstance(value, list) else [value]
-            absolute = [os.path.join(folder, n) if isinstance(n, str) else n for n in names]
-            if absolute != names:
-                edit[key], outside = absolute if isinstance(value, list) else absolute[0], True
+            if isinstance(value, str) and file_keys[key] == "paths":  # globbed: the folder escaped, the name a pattern
+                written = os.path.join(glob.escape(str(folder)), value)
+                found = bool(glob.glob(written))
+            elif isinstance(value, (str, list)):
+                names = value if isinstance(value, list) else [value]
+                absolute = [os.path.join(folder, n) if isinstance(n, str) else n for n in names]
+                found = all(isinstance(n, str) and os.path.isfile(n) for n in absolute)
+                written = absolute if isinstance(value, list) else absolute[0]
+            else:
+                continue
+            if found and written != value:  # another object's "auto" (no file) stays as it is
+                edit[key], outside = written, True
     if not outside:
         shutil.copyfile(path, out_dir / path.name)
     elif path.suffix.lower() == ".json":

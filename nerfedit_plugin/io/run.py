@@ -101,10 +101,14 @@ class Run:
         """Where the training cameras stood, as keywords of :func:`~nerfedit_plugin.render.views.turntable_cameras`:
         their median distance to the centre of ``scene_bbox`` (in half-diagonals of it), elevation above its
         equator about ``up`` (degrees) and vertical field of view (degrees), so an orbit sees the scene as it was
-        filmed (a capture's field is noise outside its cameras' reach). ``{}`` for runs built from a mesh."""
-        if _is_mesh_file(self.data):
+        filmed (a capture's field is noise outside its cameras' reach). ``{}`` for runs built from a mesh or whose
+        dataset is no longer where the run recorded it."""
+        if self.from_mesh or _is_mesh_file(self.data):
             return {}
-        cameras = read_transforms(self.data, "train").cameras
+        try:
+            cameras = read_transforms(self.data, "train").cameras
+        except NerfEditError:  # the dataset moved or is gone: the default ring
+            return {}
         box = torch.as_tensor(scene_bbox, dtype=torch.float64).cpu()
         offsets = cameras.c2w[:, :3, 3].double() - box.mean(0)
         distance = torch.linalg.norm(offsets, dim=1)

@@ -1,10 +1,12 @@
 """Animations: the frames of a deformation rendered along a camera trajectory, one PNG per shot, then MP4 / GIF.
 
 A *shot* is one image: (deformation frame, camera). Trajectories (:func:`trajectory`): ``fixed`` — camera ``view``
-of a transforms file for every frame; ``orbit`` — one turn around the scene box over the frames; ``path`` —
-camera ``i`` of a transforms file or of a nerfstudio ``camera_path.json`` for the ``i``-th frame.
+of a transforms file for every frame; ``orbit`` — one turn around the scene box, the frames spread over its shots
+(:func:`orbit_shots`); ``path`` — camera ``i`` of a transforms file or of a nerfstudio ``camera_path.json`` for the
+``i``-th frame.
 
-:func:`render_animation` writes ``OUT/frame_NNNN.png`` (NNNN the deformation frame) through an executor
+:func:`render_animation` writes ``OUT/frame_NNNN.png`` (NNNN the deformation frame, or the shot when a frame is
+shown more than once) through an executor
 (:mod:`nerfedit_plugin.render.executors`) into the output's staging folder, which is marked partial first with the
 settings' key: an interrupted render leaves a partial output (docs/reliability.md), and ``resume`` continues it,
 rendering only the shots whose PNG is missing (refused when the settings differ). Each PNG is written atomically,

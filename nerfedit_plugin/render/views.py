@@ -104,5 +104,7 @@ def turntable_cameras(
         + math.sin(elevation) * axis
     )
     eyes = center + distance * radius * ring
-    fov = math.radians(fov_degrees) if fov_degrees is not None else 2.0 * math.asin(min(1.0, 1.0 / distance))
+    if fov_degrees is None and distance <= 1.0:
+        raise ValueError(f"turntable_cameras: distance {distance} puts the cameras inside the box's ball: give a fov")
+    fov = math.radians(fov_degrees) if fov_degrees is not None else 2.0 * math.asin(1.0 / distance)
     return Cameras.from_fov(look_at(eyes, center.expand(n, 3), up), size, size, fov)

@@ -563,7 +563,7 @@ class Editor:
         return self.state.scale(step["scale"])
 
     def _scripted(self, step: dict) -> str | None:
-        kind = next(iter(step), None)
+        kind = next((key for key in step if key in SCRIPT_STEPS), None)
         value = step.get(kind)
         actions = {
             "pick": lambda: self.state.select(value),
@@ -596,9 +596,9 @@ SCRIPT_STEPS = (
 def check_script(steps: list[dict], where: str) -> None:
     """A :class:`NerfEditError` naming ``where`` and the step for the first step of no known kind."""
     for i, step in enumerate(steps):
-        kind = next(iter(step))
-        extra = set(step) - {kind} - ({"radius"} if kind == "brush" else set())
-        if kind not in SCRIPT_STEPS or extra:
+        kinds = [key for key in step if key in SCRIPT_STEPS]
+        extra = set(step) - set(kinds[:1]) - ({"radius"} if kinds == ["brush"] else set())
+        if len(kinds) != 1 or extra:
             raise NerfEditError(
                 f"{where}: step {i} {json.dumps(step)}: unknown step (expected one of {', '.join(SCRIPT_STEPS)})"
             )

@@ -337,8 +337,9 @@ def test_vacated_fill_copies_neighbouring_floor_over_the_footprint(scene, tmp_pa
 
 
 def test_faces_joining_a_moved_object_to_the_rest_are_dropped_from_the_scene_mesh():
-    """A strip of 4 quads; the object is its last two columns of vertices, joined to the rest by faces. Moved, those
-    faces are left out of ``deformed_mesh.ply`` (they would stretch across the move); at rest every face stays."""
+    """A strip of 4 quads; the object is its last two columns of vertices, joined to the rest by faces. Moved away,
+    those faces are left out of ``deformed_mesh.ply`` (they would span the move); at rest, or moved less than the
+    faces' size, every face stays."""
     from types import SimpleNamespace
 
     from nerfedit_plugin.edit.objects import _scene_frames
@@ -349,7 +350,7 @@ def test_faces_joining_a_moved_object_to_the_rest_are_dropped_from_the_scene_mes
     idx = np.arange(6, 10)  # x = 3, 4: the last quad, joined to the rest by the third
     part = mesh.submesh(np.isin(np.arange(10), idx))[0]
     spec = SimpleNamespace(objects=[SimpleNamespace(removed=False)])
-    for shift, faces in ((0.0, 8), (1.0, 6)):
+    for shift, faces in ((0.0, 8), (0.1, 8), (3.0, 6)):  # at rest and bent a little in place, nothing is dropped
         placed = [[SimpleNamespace(surface=(part.vertices + [0.0, 0.0, shift])[None])]]
         (scene,) = _scene_frames(mesh, [idx], [part], spec, placed, 1)
         assert len(scene.faces) == faces

@@ -1,6 +1,7 @@
 """The spec copy in an edit folder is a spec that runs: the files a deformer read (a file, a list, a glob) are named
 by absolute paths in it, so ``nerfedit edit --edit EDIT/spec`` reproduces the edit from any folder."""
 
+import glob
 import json
 import os
 
@@ -40,17 +41,29 @@ def test_a_copied_spec_names_the_deformer_files_absolute_and_reruns(capsule, tmp
 
 
 def test_a_scene_spec_copy_names_its_objects_edit_files_absolute(tmp_path):
-    """In a scene spec, the deformer keys of every object's and copy's ``edit`` are rewritten; other keys, absolute
-    names and keys no deformer read are kept."""
+    """In a scene spec, the deformer keys of every object's and copy's ``edit`` that name files are rewritten; a value
+    naming no file (another object's ``"auto"``), absolute names and keys no deformer read are kept. A folder with
+    glob characters is escaped where the name is globbed."""
     from nerfedit_plugin.edit.spec import copy_spec_file
 
-    edit = {"deformed": "a.ply", "note": "a.ply"}
-    copies = [{"edit": {"deformed": "/b.ply"}}]
-    scene = {"objects": [{"name": "o", "select": {"box": {}}, "edit": edit, "copies": copies}]}
-    (tmp_path / "in").mkdir()
-    (tmp_path / "in" / "scene.json").write_text(json.dumps(scene))
+    folder = tmp_path / "scan[1]"
+    (folder / "poses").mkdir(parents=True)
+    for name in ("a.ply", "poses/p0.ply"):
+        (folder / name).write_bytes(b"")
+    edits = [{"cage": "a.ply", "note": "a.ply"}, {"cage": "auto"}, {"deformed": "poses/*.ply"}]
+    copies = [{"edit": {"cage": "/b.ply"}}]
+    objects = [{"name": f"o{i}", "select": {"box": {}}, "edit": e} for i, e in enumerate(edits)]
+    objects[0]["copies"] = copies
+    (folder / "scene.json").write_text(json.dumps({"objects": objects}))
     (tmp_path / "out").mkdir()
-    copy_spec_file(tmp_path / "in" / "scene.json", tmp_path / "out", {"deformed"})
-    (written,) = json.loads((tmp_path / "out" / "scene.json").read_text())["objects"]
-    assert written["edit"] == {"deformed": str(tmp_path / "in" / "a.ply"), "note": "a.ply"}
-    assert written["copies"][0]["edit"] == {"deformed": "/b.ply"}
+    copy_spec_file(folder / "scene.json", tmp_path / "out", {"cage": "path", "deformed": "paths"})
+    written = [o["edit"] for o in json.loads((tmp_path / "out" / "scene.json").read_text())["objects"]]
+    assert written[0] == {"cage": str(folder / "a.ply"), "note": "a.ply"} and written[1] == {"cage": "auto"}
+    assert written[2] == {"deformed": os.path.join(glob.escape(str(folder)), "poses/*.ply")}
+    assert glob.glob(written[2]["deformed"]) == [str(folder / "poses" / "p0.ply")]
+    copied = json.loads((tmp_path / "out" / "scene.json").read_text())["objects"][0]["copies"][0]["edit"]
+    assert copied == {"cage": "/b.ply"}
+    from nerfedit_plugin.edit.spec import load_edit_spec
+
+    (folder / "glob.json").write_text(json.dumps({"deformed": "poses/*.ply"}))  # the folder's "[1]" is no pattern
+    assert load_edit_spec(folder / "glob.json", ("deformed",)).paths("deformed") == [folder / "poses" / "p0.ply"]

@@ -69,7 +69,8 @@ def test_screenshot_renders_rest_and_edit_side_by_side(edit_dir, capsule, tmp_pa
 
 def test_screenshot_of_the_editor_state_shows_the_spec_settled(edit_dir, tmp_path, monkeypatch):
     """``view --mesh M --spec S --screenshot`` renders the editor's state offscreen: the rest mesh, and the spec
-    settled beside it (the ``deformed_mesh.ply`` ``nerfedit edit`` wrote for S); no spec: the rest mesh alone."""
+    settled beside it (the ``deformed_mesh.ply`` ``nerfedit edit`` wrote for S); without --spec the rest mesh alone,
+    even where the editor's default ``edit.json`` exists."""
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
     from nerfedit_plugin.viewer.editor_state import EditorState
     from nerfedit_plugin.viewer.layers import settled_geometries
@@ -78,7 +79,8 @@ def test_screenshot_of_the_editor_state_shows_the_spec_settled(edit_dir, tmp_pat
     state = EditorState.open("arap", SurfaceMesh.load(mesh), edit_dir.parent / "edit.json")
     np.testing.assert_allclose(state.settled[0], SurfaceMesh.load(edit_dir / "deformed_mesh.ply").vertices, atol=1e-9)
     assert len(settled_geometries(state.mesh, None)) == 1 and len(settled_geometries(state.mesh, state.mesh)) == 2
-    monkeypatch.chdir(tmp_path)  # no edit.json here: the default --spec does not exist
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "edit.json").write_text((edit_dir.parent / "edit.json").read_text())  # the editor's default: not used
     size = ["--width", "320", "--height", "200"]
     assert main(["view", "--mesh", str(mesh), "--screenshot", "bare.png", *size]) == 0
     spec = ["--spec", str(edit_dir.parent / "edit.json")]
