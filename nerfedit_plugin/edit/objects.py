@@ -326,36 +326,34 @@ def _scene_frames(
     for obj, idx in zip(spec.objects, selected):
         keep[idx] = not obj.removed
     base, index = mesh.submesh(keep)
-    owner, posed = np.full(base.n_vertices, -1), np.repeat(base.vertices[None], n, axis=0)
+    owner, posed = np.full(base.n_vertices, -1), [base.vertices.copy() for _ in range(n)]
     for o, (obj, idx, instances) in enumerate(zip(spec.objects, selected, placed)):
         if not obj.removed:
             owner[index[idx]] = o
-            frames = instances[0].surface
-            posed[:, index[idx]] = frames[np.minimum(np.arange(n), len(frames) - 1)]
+            for f, positions in enumerate(posed):
+                positions[index[idx]] = instances[0].surface[min(f, len(instances[0].surface) - 1)]
     corners = owner[base.faces]
     joining = np.flatnonzero((corners != corners[:, :1]).any(1))
-    rest = np.linalg.norm(base.vertices[base.faces[joining]] - base.vertices[base.faces[joining][:, [1, 2, 0]]], axis=2)
-    edges = posed[:, base.faces[joining]] - posed[:, base.faces[joining][:, [1, 2, 0]]]
-    stretched = (np.linalg.norm(edges, axis=3) > 2.0 * rest + 1e-12).any(axis=(0, 2))
-    dropped = np.zeros(len(base.faces), dtype=bool)
-    dropped[joining[stretched]] = True
+    tri, turn = base.faces[joining], base.faces[joining][:, [1, 2, 0]]
+    length = np.linalg.norm(base.vertices[tri] - base.vertices[turn], axis=2)
+    stretched = np.zeros(len(joining), dtype=bool)
+    for positions in posed:
+        stretched |= (np.linalg.norm(positions[tri] - positions[turn], axis=2) > 2.0 * length + 1e-12).any(1)
+    faces = np.delete(base.faces, joining[stretched], axis=0)
     meshes = []
-    for f in range(n):
-        vertices, faces, colors = [base.vertices.copy()], [base.faces[~dropped]], [base.vertex_colors]
+    for f, positions in enumerate(posed):
+        vertices, pieces, colors = [positions], [faces], [base.vertex_colors]
         offset = len(base.vertices)
-        for obj, idx, part, instances in zip(spec.objects, selected, surfaces, placed):
-            for k, inst in enumerate(instances):
+        for obj, part, instances in zip(spec.objects, surfaces, placed):
+            for inst in instances if obj.removed else instances[1:]:  # copies; an original is placed in positions
                 frame = inst.surface[min(f, len(inst.surface) - 1)]
-                if k == 0 and not obj.removed:
-                    vertices[0][index[idx]] = frame
-                    continue
                 vertices.append(frame)
-                faces.append(part.faces + offset)
+                pieces.append(part.faces + offset)
                 colors.append(part.vertex_colors)
                 offset += len(frame)
         colored = all(c is not None for c in colors)
         meshes.append(
-            SurfaceMesh(np.concatenate(vertices), np.concatenate(faces), np.concatenate(colors) if colored else None)
+            SurfaceMesh(np.concatenate(vertices), np.concatenate(pieces), np.concatenate(colors) if colored else None)
         )
     return meshes
 

@@ -193,8 +193,8 @@ def _finite(name: str, value: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     value = np.asarray(value, dtype=np.float64)
     if value.shape != shape:
         raise NerfEditError(f"ARAP: {name} must have shape {shape}, got {value.shape}")
-    bad = np.count_nonzero(~np.isfinite(value))
-    if bad:
+    if not np.isfinite(value).all():
+        bad = np.count_nonzero(~np.isfinite(value))
         raise NerfEditError(f"ARAP: {name} holds {bad} non-finite values (NaN or inf)")
     return value
 
