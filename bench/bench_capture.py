@@ -137,7 +137,7 @@ def train_psnr(data: Path, out: Path, seconds: float, downscale: int) -> float:
     """Held-out PSNR (every held-out view) of the ``nerf`` defaults trained for ``seconds`` CPU seconds on ``data``,
     its images downscaled by ``downscale``."""
     from nerfedit_plugin.fields.nerf import NerfConfig
-    from nerfedit_plugin.io.run import train_run
+    from nerfedit_plugin.pipeline.train import train_run
 
     config = NerfConfig()
     config.train.max_seconds, config.train.clock, config.train.progress = seconds, "cpu", False

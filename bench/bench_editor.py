@@ -2,7 +2,7 @@
 
 1. Handle drag on ``sample:bunny`` (28k vertices; bottom fixed, ears moving), per backend: 30 moves of a drag, each
    the handle move + the preview (arap: a warm-started solve of
-   :data:`~nerfedit_plugin.viewer.backends.PREVIEW_ITERATIONS`; cage: the bound coordinates; skeleton: the bound
+   :data:`deformers.arap.PREVIEW_ITERATIONS`; cage: the bound coordinates; skeleton: the bound
    skinning weights) + the deformed mesh's positions set in the scene's tensor mesh (normals are recomputed on
    release; the window's ``add_geometry`` and frame time are not in it). Target ≤ 100 ms per move. Reports the split
    (solve vs geometry update), the ARAP iterations per move, and the settle on release: the energy gap of the last
@@ -99,7 +99,7 @@ def drag(name: str) -> None:
 
 
 def render(run_path: str) -> None:
-    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.pipeline.run import open_run
     from nerfedit_plugin.viewer.field_preview import FieldPreview
 
     run = open_run(run_path)

@@ -1,7 +1,7 @@
 """Inversion-free lift vs soft ARAP lift (docs/benchmarks.md), both measured in this run.
 
-For the demo's edit (:func:`nerfedit_plugin.demo.nod_edit` on the pymeshlab bunny in the generator's frame — z up,
-normalised — standing in for the trained field's mesh), each cheap example config in ``configs/`` (on the sample
+For the demo's edit (:func:`~nerfedit_plugin.pipeline.demo.nod_edit` on the pymeshlab bunny in the generator's frame —
+z up, normalised — standing in for the trained field's mesh), each cheap example config in ``configs/`` (on the sample
 meshes as they are; ``cage_bunny_files.yaml`` needs hand-made cage files: skipped) and a tube bent by a cage (fixed
 base, tip moved sideways by 17 % of its length): deform the surface with the deformer, build the tet proxy once
 (cached in /tmp), then time ``Lift`` (set-up + every frame) three ways: the soft ARAP lift of before
@@ -30,12 +30,12 @@ import trimesh
 from timing import timed
 
 from nerfedit_plugin.data.synthetic import normalize
-from nerfedit_plugin.demo import nod_edit
 from nerfedit_plugin.edit.lift import Lift, LiftConfig
 from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy
 from nerfedit_plugin.edit.spec import load_edit_spec
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.samples import sample_mesh_path
+from nerfedit_plugin.geometry.samples import sample_mesh_path
+from nerfedit_plugin.pipeline.demo import nod_edit
 from nerfedit_plugin.registry import DEFORMERS, discover
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,8 +24,8 @@ from timing import best_of
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.locate import TetLocator, locate_brute_force
+from nerfedit_plugin.geometry.samples import sample_mesh_path
 from nerfedit_plugin.geometry.tets import orient_tets
-from nerfedit_plugin.io.samples import sample_mesh_path
 
 CACHE = Path("/tmp/nerfedit_bench_locate")
 

@@ -1,6 +1,6 @@
 """The paper's tables (NeRF-Editing, CVPR 2022: Table 1 and the ablations of Tables 2–3) on a posed articulated subject.
 
-Subject (:mod:`nerfedit_plugin.data.articulated`): a generated stick figure with a ground-truth rig and one fixed
+Subject (``bench/articulated.py``): a generated stick figure with a ground-truth rig and one fixed
 pose (every limb bent 30–60° at every joint). Ground truth: the subject's own mesh posed by the rig (the ``skeleton``
 deformer: bone-heat weights, dual quaternions) and rendered exactly from the test cameras. Pipeline, as a user of
 the paper's Blender workflow would run it: generate the dataset → train ``neus`` (defaults, the 270 s budget counted in
@@ -47,18 +47,20 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from articulated import build_subject  # noqa: E402
+from surface_deformation import SurfaceDeformation  # noqa: E402
+
 from nerfedit_plugin.bending.deformation_field import DeformationField  # noqa: E402
-from nerfedit_plugin.bending.surface_deformation import SurfaceDeformation  # noqa: E402
-from nerfedit_plugin.data.articulated import build_subject  # noqa: E402
 from nerfedit_plugin.data.datasets import load_dataset  # noqa: E402
 from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset, render_ground_truth  # noqa: E402
-from nerfedit_plugin.edit.job import run_edit  # noqa: E402
 from nerfedit_plugin.edit.lift import Lift  # noqa: E402
 from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy  # noqa: E402
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
 from nerfedit_plugin.io.atomic import write_text  # noqa: E402
-from nerfedit_plugin.io.run import extract_mesh, train_run  # noqa: E402
+from nerfedit_plugin.pipeline.edit import run_edit  # noqa: E402
+from nerfedit_plugin.pipeline.extract import extract_mesh  # noqa: E402
+from nerfedit_plugin.pipeline.train import train_run  # noqa: E402
 from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover  # noqa: E402
 from nerfedit_plugin.render.views import default_render_config, render_views, write_images  # noqa: E402
 from nerfedit_plugin.timing import Stopwatch  # noqa: E402

@@ -17,8 +17,8 @@ import numpy as np
 
 from nerfedit_plugin.edit.proxy import ProxyConfig, build_proxy, tetrahedralize
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.samples import sample_mesh_path
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
-from nerfedit_plugin.io.samples import sample_mesh_path
 
 
 def quality(vertices: np.ndarray, tets: np.ndarray) -> str:

@@ -1,7 +1,7 @@
 """Edits at scale (issue 18, docs/benchmarks.md): the ARAP head edit on the bunny and its Loop subdivisions.
 
 ``sample:bunny`` (28k vertices) and 1–3 Loop subdivisions (pymeshlab ``meshing_surface_subdivision_loop``: 112k,
-449k, 1.8M; cached in /tmp), ``configs/arap_bunny_head.json``, ``nerfedit_plugin.edit.job.run_edit`` with the
+449k, 1.8M; cached in /tmp), ``configs/arap_bunny_head.json``, ``nerfedit_plugin.pipeline.edit.run_edit`` with the
 default ARAP deformer and lift. Each case runs in its own subprocess (peak RSS per case), first with an empty proxy
 cache (cold), then again with the cache it filled (warm). Printed per row: the stage times of ``timings_s``, the
 folded faces, inverted tets, peak RSS, the case's CPU time (all threads, imports included), µs per vertex (of
@@ -60,7 +60,7 @@ def level_mesh(level: int) -> Path:
 def run_case(mesh: str, cache: str) -> None:
     """One edit (the subprocess side): prints its report's figures and the peak RSS as one JSON line."""
     from deformers.arap import ArapConfig
-    from nerfedit_plugin.edit.job import run_edit
+    from nerfedit_plugin.pipeline.edit import run_edit
 
     with tempfile.TemporaryDirectory() as out:
         report = run_edit(mesh, ArapConfig(), EDIT, Path(out) / "edit", cache_dir=cache).report

@@ -7,7 +7,7 @@ defaults (a volume-rendered density field with its background model) trained for
 The dataset, the trained run and the edits are cached in ``--cache`` (default ``/tmp/nerfedit-bench-scene``), so a
 rerun only renders.
 
-Edits (the user path: an ``objects`` spec in a JSON file run by :func:`nerfedit_plugin.edit.job.run_edit` on the
+Edits (the user path: an ``objects`` spec in a JSON file run by :func:`nerfedit_plugin.pipeline.edit.run_edit` on the
 dataset's ``mesh.ply``, the proxy offset from the run's camera distance as ``nerfedit edit --run`` sets it): the bunny
 is selected (``component``), scaled by :data:`SCALE` and moved onto the empty floor, with k − 1 copies at other
 spots of :data:`SPOTS` — a scene deformation of k instances (k proxies) for k = 1, 2, 4, 8, every proxy inside the
@@ -50,11 +50,12 @@ from nerfedit_plugin.bending.scene_deformation import load_deformation  # noqa: 
 from nerfedit_plugin.data.datasets import load_dataset  # noqa: E402
 from nerfedit_plugin.data.scene import generate_scene, read_scene  # noqa: E402
 from nerfedit_plugin.data.synthetic import GenerateConfig  # noqa: E402
-from nerfedit_plugin.edit.job import run_edit  # noqa: E402
 from nerfedit_plugin.errors import NerfEditError  # noqa: E402
 from nerfedit_plugin.fields.nerf import NerfConfig  # noqa: E402
 from nerfedit_plugin.fields.neus import NeusConfig  # noqa: E402
-from nerfedit_plugin.io.run import open_run, train_run  # noqa: E402
+from nerfedit_plugin.pipeline.edit import run_edit  # noqa: E402
+from nerfedit_plugin.pipeline.run import open_run  # noqa: E402
+from nerfedit_plugin.pipeline.train import train_run  # noqa: E402
 from nerfedit_plugin.registry import DEFORMERS, discover  # noqa: E402
 from nerfedit_plugin.render.renderer import render_image  # noqa: E402
 from nerfedit_plugin.render.views import default_render_config  # noqa: E402

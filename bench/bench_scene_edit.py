@@ -43,7 +43,7 @@ from nerfedit_plugin.data.datasets import load_dataset  # noqa: E402
 from nerfedit_plugin.data.scene import read_scene, scene_mesh  # noqa: E402
 from nerfedit_plugin.data.synthetic import render_mesh  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
-from nerfedit_plugin.io.run import extract_mesh  # noqa: E402
+from nerfedit_plugin.pipeline.extract import extract_mesh  # noqa: E402
 from nerfedit_plugin.render.views import default_render_config, render_views  # noqa: E402
 
 SLIDE = (1.2, 0.0, 0.0)

@@ -45,9 +45,9 @@ def bench_render(frames: int, size: int, workers: int) -> None:
 
     from nerfedit_plugin.cli.app import main
     from nerfedit_plugin.data.synthetic import colorize
-    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.pipeline.executors import LocalExecutor, RayExecutor, RenderJob
+    from nerfedit_plugin.pipeline.run import open_run
     from nerfedit_plugin.render.animation import render_animation, trajectory
-    from nerfedit_plugin.render.executors import LocalExecutor, RayExecutor, RenderJob
 
     root = Path(tempfile.mkdtemp(prefix="bench-sequence-"))
     rest, _ = bending_capsule(n_frames=2)

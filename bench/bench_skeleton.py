@@ -30,7 +30,7 @@ from deformers.skeleton import Skeleton  # noqa: E402
 from deformers.skeleton.heat_weights import bone_heat_weights  # noqa: E402
 from deformers.skeleton.skinning import Binding, normalize_weights, skin  # noqa: E402
 from nerfedit_plugin.geometry.mesh import SurfaceMesh  # noqa: E402
-from nerfedit_plugin.io.samples import sample_mesh_path  # noqa: E402
+from nerfedit_plugin.geometry.samples import sample_mesh_path  # noqa: E402
 
 TARGET_WEIGHTS_S = 2.0
 TARGET_POSE_MS = 20.0

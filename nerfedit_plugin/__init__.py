@@ -9,8 +9,6 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from nerfedit_plugin import _compat
-
 __version__ = "0.1.0"
 
 #: public name -> module that defines it
@@ -44,7 +42,7 @@ _API = {
     "cached_proxy": "edit.proxy",
     "Lift": "edit.lift",
     "LiftConfig": "edit.lift",
-    "run_edit": "edit.job",
+    "run_edit": "pipeline.edit",
     # bending and rendering
     "DeformationField": "bending.deformation_field",
     "SceneDeformation": "bending.scene_deformation",
@@ -53,12 +51,12 @@ _API = {
     "render_image": "render.renderer",
     "render_views": "render.views",
     # runs and checkpoints
-    "Run": "io.run",
-    "open_run": "io.run",
-    "train_run": "io.run",
-    "extract_mesh": "io.run",
-    "save_field": "io.checkpoint",
-    "load_field": "io.checkpoint",
+    "Run": "pipeline.run",
+    "open_run": "pipeline.run",
+    "train_run": "pipeline.train",
+    "extract_mesh": "pipeline.extract",
+    "save_field": "fields.checkpoint",
+    "load_field": "fields.checkpoint",
     # metrics
     "evaluate_folders": "training.metrics",
     # conformance kits
@@ -68,8 +66,6 @@ _API = {
 }
 
 __all__ = sorted(_API)
-
-_compat.install()  # module paths of 0.1.0 keep importing for one release
 
 
 def __getattr__(name: str) -> Any:
@@ -93,15 +89,17 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.data.scene import generate_scene, read_scene, scene_mesh
     from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
     from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
-    from nerfedit_plugin.edit.job import run_edit
     from nerfedit_plugin.edit.lift import Lift, LiftConfig
     from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy
     from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, parse_edit_spec
     from nerfedit_plugin.errors import NerfEditError
     from nerfedit_plugin.fields.base import Field, FieldConfig
+    from nerfedit_plugin.fields.checkpoint import load_field, save_field
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.checkpoint import load_field, save_field
-    from nerfedit_plugin.io.run import Run, extract_mesh, open_run, train_run
+    from nerfedit_plugin.pipeline.edit import run_edit
+    from nerfedit_plugin.pipeline.extract import extract_mesh
+    from nerfedit_plugin.pipeline.run import Run, open_run
+    from nerfedit_plugin.pipeline.train import train_run
     from nerfedit_plugin.registry import discover
     from nerfedit_plugin.render.renderer import RenderConfig, render_image
     from nerfedit_plugin.render.views import render_views

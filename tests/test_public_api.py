@@ -1,14 +1,13 @@
-"""The public API (``nerfedit_plugin``'s lazy names), the declared contracts, and the 0.1.0 module aliases."""
+"""The public API (``nerfedit_plugin``'s lazy names) and the declared contracts."""
 
 import subprocess
 import sys
-import warnings
 
 import numpy as np
 import pytest
 
 import nerfedit_plugin
-from nerfedit_plugin import Deformer, DeformerConfig, Field, SurfaceMesh
+from nerfedit_plugin import Deformer, DeformerConfig, Field
 
 
 def test_import_is_cheap():
@@ -61,45 +60,36 @@ def test_optional_hooks_have_declared_defaults(capsule):
     assert Minimal.identity_edit({}, capsule) is None and Minimal.rigid_edit({}, capsule) is None
 
 
-@pytest.mark.parametrize(
-    "old, new",
-    [
-        ("nerfedit_plugin.deformation_field", "nerfedit_plugin.bending.deformation_field"),
-        ("nerfedit_plugin.editspec", "nerfedit_plugin.edit.spec"),
-        ("nerfedit_plugin.testing_fields", "nerfedit_plugin.testing.fields"),
-        ("deformers.skinning", "deformers.skeleton.skinning"),
-        ("deformers.mean_value", "deformers.cage.mean_value"),
-    ],
-)
-def test_old_module_paths_alias_with_a_warning(old, new):
-    sys.modules.pop(old, None)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        module = __import__(old, fromlist=["_"])
-    assert module is sys.modules[new]
-    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in caught)
+def test_every_deformation_the_renderer_takes_declares_the_backward_map(capsule):
+    """DeformationField and SceneDeformation (and the paper's per-sample baseline in bench/) are BackwardMaps, the
+    renderer's contract; an object missing a member is not."""
+    from nerfedit_plugin.bending.deformation_field import DeformationField
+    from nerfedit_plugin.bending.maps import BackwardMap
+    from nerfedit_plugin.bending.scene_deformation import SceneDeformation
+
+    tet = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    field = DeformationField.identity(tet, np.array([[0, 1, 2, 3]]))
+    assert isinstance(field, BackwardMap) and isinstance(SceneDeformation.from_field(field), BackwardMap)
+
+    class NoBounds:
+        n_frames = 1
+
+        def bend(self, x, frame=0, *, out=None, tets=True): ...
+        def jacobian(self, tet, frame=0): ...
+        def to_canonical(self, x, frame=0): ...
+
+    assert not isinstance(NoBounds(), BackwardMap)
 
 
-def test_renamed_functions_alias_with_a_warning():
-    """``data.synthetic.render_views`` (a mesh into PNGs) was renamed so that it no longer shares the package's
-    ``render_views`` (a field into images)."""
-    from nerfedit_plugin.data import synthetic
+def test_fields_declare_how_they_render_and_what_runs_are_made_from():
+    from nerfedit_plugin.fields.mesh_field import MeshField
+    from nerfedit_plugin.fields.nerf import NerfField
+    from nerfedit_plugin.fields.neus import NeusField
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        old = synthetic.render_views
-    assert old is synthetic.render_mesh_views
-    assert any(issubclass(w.category, DeprecationWarning) and "render_mesh_views" in str(w.message) for w in caught)
-    with pytest.raises(AttributeError):
-        synthetic.no_such_name  # noqa: B018
-
-
-def test_old_packages_reexport_what_they_held():
-    from nerfedit_plugin.cli import main
-    from nerfedit_plugin.edit import run_edit
-    from nerfedit_plugin.testing import check_deformer
-
-    assert main.__module__ == "nerfedit_plugin.cli.app"
-    assert run_edit.__module__ == "nerfedit_plugin.edit.job"
-    assert check_deformer.__module__ == "nerfedit_plugin.testing.deformers"
-    assert isinstance(SurfaceMesh, type)
+    assert Field.rendering == "rays" and Field.sources == {"dataset"} and not Field.exact_mesh
+    assert (NerfField.sources, NeusField.sources, MeshField.sources) == ({"dataset"}, {"dataset"}, {"model"})
+    assert MeshField.exact_mesh and all(f.rendering == "rays" for f in (NerfField, NeusField, MeshField))
+    with pytest.raises(NotImplementedError, match="not made from a model file"):
+        NerfField.from_file("x.ply")
+    with pytest.raises(NotImplementedError, match="rendered by ray marching"):
+        MeshField.render(MeshField.__new__(MeshField), None, 0, None)

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from nerfedit_plugin.bending.locate import TetLocator, face_pairs
+from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.io.atomic import atomic_path
 
@@ -31,19 +32,6 @@ NEAR_CELLS = 96
 
 MOVED_TOLERANCE = 1e-6
 """Displacements up to this fraction of the rest proxy's extent count as none (still tets)."""
-
-
-class BentPoints(NamedTuple):
-    points: torch.Tensor  # (M,3) x_c (x itself where not inside T')
-    tet: torch.Tensor | None  # (M,) int64: the deformed tet containing x, -1 outside T' (None if not asked for)
-    empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
-
-
-class CanonicalPoints(NamedTuple):
-    points: torch.Tensor  # (M,3) x_c
-    inside: torch.Tensor  # (M,) bool: located in the deformed proxy T' (mapped)
-    empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
-    jacobian: torch.Tensor  # (M,3,3) dx_c/dx, constant per tet; identity where not inside
 
 
 def validate_arrays(rest, tets, deformed, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -119,7 +107,8 @@ def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor
 
 
 class DeformationField:
-    """Tet proxy in canonical space T plus its deformed copies T' per frame; maps deformed-space points to canonical.
+    """Tet proxy in canonical space T plus its deformed copies T' per frame; maps deformed-space points to canonical
+    (a :class:`~nerfedit_plugin.bending.maps.BackwardMap`).
 
     ``rest_vertices (N,3)``, ``tets (K,4)`` int, ``deformed_vertices (F,N,3)`` (or ``(N,3)`` for one frame), arrays
     or tensors, stored as float64 / int64 numpy arrays; points are mapped in ``dtype`` on ``device``.

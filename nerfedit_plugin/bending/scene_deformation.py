@@ -30,8 +30,9 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from nerfedit_plugin.bending.deformation_field import BentPoints, CanonicalPoints, DeformationField, validate_arrays
+from nerfedit_plugin.bending.deformation_field import DeformationField, validate_arrays
 from nerfedit_plugin.bending.locate import TetLocator
+from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.io.atomic import atomic_path
 
@@ -76,9 +77,8 @@ class Stage:
 
 
 class SceneDeformation:
-    """Stages of objects and instances mapping deformed-space points to canonical space (module docstring); the
-    interface the renderer uses is :class:`DeformationField`'s: :meth:`bend`, :meth:`jacobian`,
-    :meth:`moved_bounds`, :meth:`to_canonical`, ``n_frames``."""
+    """Stages of objects and instances mapping deformed-space points to canonical space (module docstring): a
+    :class:`~nerfedit_plugin.bending.maps.BackwardMap`."""
 
     def __init__(self, stages: list[Stage], *, device="cpu", dtype=torch.float32, kernel: str = "auto"):
         if not stages:

@@ -154,8 +154,7 @@ def _check_target(file: Path, key: str, plain: Any, config_class: type) -> None:
 
 
 def _import(name: str) -> Any:
-    """The object at a dotted path through importlib (the moved-module aliases of :mod:`nerfedit_plugin._compat`
-    apply); ``None`` when it does not import."""
+    """The object at a dotted path (``module.qualname``); ``None`` when it does not import."""
     try:
         return pkgutil.resolve_name(name)
     except (ImportError, AttributeError, ValueError):

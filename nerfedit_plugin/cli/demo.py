@@ -26,7 +26,7 @@ class DemoArgs:
 
 def demo(args: DemoArgs) -> None:
     from nerfedit_plugin.cli.progress import StageProgress
-    from nerfedit_plugin.demo import run_demo
+    from nerfedit_plugin.pipeline.demo import run_demo
 
     with StageProgress(console) as stages:
         summary = run_demo(

@@ -57,9 +57,10 @@ class EditArgs:
 
 
 def edit(args: EditArgs) -> None:
-    from nerfedit_plugin.cli.render import render_run
-    from nerfedit_plugin.edit.job import Base, run_edit
-    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.edit.objects import is_objects_spec
+    from nerfedit_plugin.pipeline.edit import Base, export_to_capture, run_edit
+    from nerfedit_plugin.pipeline.render import render_run
+    from nerfedit_plugin.pipeline.run import open_run
 
     run = open_run(args.run) if args.run is not None else None
     if run is not None and args.field is not None and args.field != run.backend:
@@ -79,6 +80,9 @@ def edit(args: EditArgs) -> None:
         raise NerfEditError("give the mesh to edit: --mesh MESH.ply or --run RUN_DIR (its extracted mesh)")
     mesh = base.mesh() if base is not None else args.mesh if args.mesh is not None else run.mesh()
     distance = args.camera_distance if args.camera_distance is not None or run is None else run.camera_distance()
+    record = recorded(args)
+    if not is_objects_spec(args.edit):  # config.yml names the edit's own proxy: a re-run from it is the same edit
+        record = dataclasses.replace(record, proxy_from=args.out.absolute())
     with StageProgress(console) as progress:
         result = run_edit(
             mesh,
@@ -94,7 +98,7 @@ def edit(args: EditArgs) -> None:
             proxy_from=args.proxy_from,
             base=base,
             overwrite=args.overwrite,
-            record=recorded(args),
+            record=record,
             on_stage=progress.on_stage,
             on_progress=progress.on_progress,
         )
@@ -109,26 +113,6 @@ def edit(args: EditArgs) -> None:
     if args.render_cameras is not None:
         out = render_run(run, args.render_cameras, result.out / "deformation.npz", None, result.out / "renders", False)
         console.print(f"renders → {out}")
-
-
-def export_to_capture(run, folder: Path) -> list[Path]:
-    """Each ``deformed_mesh*.ply`` of an edit ``folder`` mapped by the inverse of the run's source transform (the
-    capture's frame) into ``folder/capture/`` under the same name, each written atomically."""
-    import numpy as np
-
-    from nerfedit_plugin.data.normalization import apply
-    from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.atomic import atomic_path
-
-    to_capture, written = np.linalg.inv(run.source_transform()), []
-    (folder / "capture").mkdir(exist_ok=True)
-    for path in sorted(folder.glob("deformed_mesh*.ply")):
-        mesh = SurfaceMesh.load(path)
-        target = folder / "capture" / path.name
-        with atomic_path(target) as tmp:
-            mesh.with_vertices(apply(to_capture, mesh.vertices)).save(tmp)
-        written.append(target)
-    return written
 
 
 COLUMNS = ("residual max (×bbox)", "residual rms", "inverted tets", "folded faces", "iterations", "seconds")

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Literal
 
 from nerfedit_plugin.cli.common import Command, console
-from nerfedit_plugin.errors import NerfEditError, check_option
+from nerfedit_plugin.errors import check_option
 
 
 @dataclasses.dataclass
@@ -45,38 +45,21 @@ class ExtractArgs:
 
 
 def extract(args: ExtractArgs) -> None:
-    from nerfedit_plugin.geometry.cleanup import drop_floaters, drop_plane
-    from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.run import export_capture_mesh, extract_mesh, open_run
+    from nerfedit_plugin.pipeline.extract import export_capture_mesh, extract_mesh
+    from nerfedit_plugin.pipeline.run import open_run
 
     run = open_run(args.run)
-    clean = args.drop_plane or args.drop_floaters is not None
-    if clean and run.from_mesh:
-        raise NerfEditError(
-            f"{run.path}: the mesh field's mesh is its field and stays whole: clean the mesh before "
-            "`nerfedit train --field mesh` (--drop-plane, --drop-floaters)"
-        )
-    largest = args.largest_component and args.drop_floaters is None
-
-    def cleaned(mesh: SurfaceMesh) -> SurfaceMesh:
-        if args.drop_plane:
-            mesh = drop_plane(mesh)
-        if args.drop_floaters is not None:
-            mesh = drop_floaters(mesh, args.drop_floaters)
-        if not len(mesh.faces):
-            raise NerfEditError(f"{run.mesh_path}: nothing is left after the clean-up (--drop-plane, --drop-floaters)")
-        return mesh
-
     path = extract_mesh(
         run,
         args.resolution,
         args.level,
+        largest_component=args.largest_component,
+        drop_plane=args.drop_plane,
+        drop_floaters=args.drop_floaters,
         overwrite=args.overwrite,
-        largest_component=largest,
-        clean=cleaned if clean else None,
     )
     mesh = run.mesh()
-    own = " (the mesh field's own mesh)" if run.from_mesh else ""
+    own = " (the mesh field's own mesh)" if run.exact_mesh else ""
     console.print(f"{path}: {mesh.n_vertices} vertices, {len(mesh.faces)} faces{own}")
     if args.frame == "capture":
         console.print(f"capture frame → {export_capture_mesh(run, overwrite=args.overwrite)}")

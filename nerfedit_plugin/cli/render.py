@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-from nerfedit_plugin.cli.common import CONFIG, Command, console, recorded
+from nerfedit_plugin.cli.common import Command, console, recorded
 from nerfedit_plugin.errors import NerfEditError, OptionError, check_option
 
 
@@ -80,75 +79,11 @@ class RenderArgs:
         parse_frames(self.frame, None)  # the syntax, before any work
 
 
-def render_run(
-    run,
-    cameras: Path,
-    deformation: Path | None,
-    frames: Sequence[int] | None,
-    out: Path,
-    overwrite: bool,
-    supersample: int = 1,
-    record: Any = None,
-    resume: bool = False,
-    frame_of_cameras: str = "world",
-    downscale: int = 1,
-) -> Path:
-    """Render ``run``'s field from every camera of a transforms file (bent by ``deformation`` at each of ``frames``,
-    default all: one frame into ``out``, several into ``out/frame_NNNN``) into PNGs named like the file's frames,
-    atomically; several frames are kept as a partial output when interrupted, and ``resume`` continues one;
-    ``record`` goes to ``out/config.yml``. ``frame_of_cameras`` and ``downscale``: see :func:`run_cameras`."""
-    from nerfedit_plugin.bending.scene_deformation import load_deformation
-    from nerfedit_plugin.config import write_config
-    from nerfedit_plugin.data.datasets import read_transforms
-    from nerfedit_plugin.io.atomic import atomic_dir, clear_partial, mark_partial
-    from nerfedit_plugin.io.faults import fault_point
-    from nerfedit_plugin.render.animation import render_key, settings_digest
-    from nerfedit_plugin.render.views import default_render_config, render_views, write_images
-
-    field = run.field()
-    transforms = read_transforms(cameras, "test" if Path(cameras).is_dir() else None)
-    names = [p.with_suffix(".png").name for p in transforms.image_paths]
-    views = run_cameras(run, transforms.cameras, frame_of_cameras, downscale)
-    bent = load_deformation(deformation) if deformation is not None else None
-    config = default_render_config(field)
-    frames = list(range(bent.n_frames if bent is not None else 1)) if frames is None else list(frames)
-    digest = settings_digest(Path(out), render_key(run, deformation, supersample, frames, views), resume)
-    with atomic_dir(out, overwrite, keep_partial=len(frames) > 1, resume=resume) as stage:
-        if len(frames) > 1:
-            mark_partial(stage, {"frames": frames, "key": digest})
-        for f in frames:
-            folder = stage if len(frames) == 1 else stage / f"frame_{f:04d}"
-            if folder != stage and folder.is_dir():  # finished before an interruption (--resume)
-                continue
-            images = render_views(field, views, config, deformation=bent, frame=f, supersample=supersample)
-            write_images(images, names, folder)
-            fault_point("render.frame")
-        if record is not None:
-            write_config(stage / CONFIG, record)
-        clear_partial(stage)
-    return Path(out)
-
-
-def run_cameras(run, cameras, frame_of_cameras: str, downscale: int):
-    """``cameras`` in the run's world frame (``frame_of_cameras == "capture"``: mapped by ``run.source_transform()``),
-    downscaled by ``downscale``."""
-    if frame_of_cameras == "capture":
-        cameras = cameras.transformed(run.source_transform())
-    return cameras.downscale(downscale) if downscale > 1 else cameras
-
-
 def render(args: RenderArgs) -> None:
-    import torch
-
-    from nerfedit_plugin.bending.scene_deformation import load_deformation
-    from nerfedit_plugin.cli.view import run_up
-    from nerfedit_plugin.io.run import open_run
-    from nerfedit_plugin.render.animation import orbit_shots, parse_frames, render_animation, render_key, trajectory
-    from nerfedit_plugin.render.executors import RenderJob, make_executor
+    from nerfedit_plugin.pipeline.render import render_run, render_trajectory
+    from nerfedit_plugin.pipeline.run import open_run
 
     run = open_run(args.run)
-    n_frames = load_deformation(args.deformation).n_frames if args.deformation is not None else 1
-    frames = parse_frames(args.frame, n_frames)
     if args.trajectory == "views":
         if args.cameras is None:
             raise NerfEditError("--cameras: needed by --trajectory views (a transforms file or dataset folder)")
@@ -156,31 +91,19 @@ def render(args: RenderArgs) -> None:
             if given:
                 raise NerfEditError(f"{flag}: for animations (--trajectory fixed, orbit or path), not views")
         out = render_run(
-            run, args.cameras, args.deformation, frames, args.out, args.overwrite, args.supersample,
+            run, args.cameras, args.deformation, args.frame, args.out, args.overwrite, args.supersample,
             recorded(args), args.resume, args.frame_of_cameras, args.downscale,
         )  # fmt: skip
         console.print(f"renders → {out}")
         return
-    orbit = args.trajectory == "orbit"
-    box, up, ring = None, (0.0, 0.0, 1.0), None
-    if orbit:
-        box, up = run.field("cpu").scene_bbox, run_up(run) or up
-        ring, frames = run.filming(box, up), orbit_shots(frames, args.shots)
-    cameras, path_fps = trajectory(
-        args.trajectory, frames, cameras=args.cameras, view=args.view, size=args.size, scene_bbox=box, up=up, ring=ring
-    )
-    cameras = run_cameras(run, cameras, "world" if orbit else args.frame_of_cameras, args.downscale)
-    job = RenderJob(run.path, args.deformation, args.supersample, torch.get_num_threads())
-    key = render_key(run, args.deformation, args.supersample, frames, cameras)
-    executor = make_executor(args.executor, job, args.ray_address, args.workers)
-    try:
-        out = render_animation(
-            executor, frames, cameras, args.out, key=key, overwrite=args.overwrite, resume=args.resume,
-            videos=args.video, fps=args.fps or path_fps or 24.0, record=recorded(args),
-        )  # fmt: skip
-    finally:
-        executor.close()
-    console.print(f"{len(frames)} {'shots' if orbit else 'frames'} → {out}")
+    out, shots = render_trajectory(
+        run, args.trajectory, args.out, deformation=args.deformation, frames=args.frame, cameras=args.cameras,
+        view=args.view, size=args.size, shots=args.shots, supersample=args.supersample,
+        frame_of_cameras=args.frame_of_cameras, downscale=args.downscale, videos=args.video, fps=args.fps,
+        executor=args.executor, ray_address=args.ray_address, workers=args.workers, overwrite=args.overwrite,
+        resume=args.resume, record=recorded(args),
+    )  # fmt: skip
+    console.print(f"{shots} {'shots' if args.trajectory == 'orbit' else 'frames'} → {out}")
 
 
 COMMAND = Command("render", RenderArgs, render, records=True)

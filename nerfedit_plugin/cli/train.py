@@ -39,7 +39,7 @@ class TrainArgs:
 
 
 def train(args: TrainArgs) -> None:
-    from nerfedit_plugin.io.run import train_run
+    from nerfedit_plugin.pipeline.train import train_run
 
     run, log = train_run(
         args.field,

@@ -10,9 +10,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from nerfedit_plugin.cli.common import CONFIG, Command, console
+from nerfedit_plugin.cli.common import Command, console
 from nerfedit_plugin.errors import NerfEditError, check_option
 
 
@@ -48,7 +46,8 @@ class ViewArgs:
     its handles (and the deformer's files) are loaded to keep editing. With --screenshot: the spec shown settled
     (only when given)."""
     deformer: str = "arap"
-    """Editor: arap (handles on mesh vertices), cage (on the cage's vertices) or skeleton (joints of --skeleton)."""
+    """Editor: arap (handles on mesh vertices), cage (on the cage's vertices), skeleton (joints of --skeleton), or a
+    plugin's deformer that declares an editing backend."""
     cage: Path | None = None
     """Editor, --deformer cage: the cage mesh; default: the automatic cage ("cage": "auto")."""
     skeleton: Path | None = None
@@ -71,53 +70,10 @@ class ViewArgs:
 Y_UP = (0.0, 1.0, 0.0)
 
 
-def edit_source(edit: Path) -> tuple[str | None, Path | None]:
-    """``(mesh, run)`` an edit folder was made from, as its config.yml records them (``nerfedit edit --mesh`` or
-    ``--run``); an error naming the folder when it is not an edit folder."""
-    from nerfedit_plugin.config import read_config
-
-    file = edit / CONFIG
-    if not file.is_file():
-        raise NerfEditError(f"{edit}: not an edit folder (no {CONFIG}; make one with `nerfedit edit`)")
-    if not (edit / "deformation.npz").is_file():
-        run_folder = (edit / "field.pt").is_file()
-        what = "a run folder: edit its field with --run" if run_folder else "make one with `nerfedit edit`"
-        raise NerfEditError(f"{edit}: not an edit folder (no deformation.npz; {what})")
-    record = read_config(file, "the config.yml of `nerfedit edit`")
-    mesh, run = record.get("mesh"), record.get("run")
-    return (mesh if isinstance(mesh, str) else None), (Path(run) if isinstance(run, str) else None)
-
-
-def run_up(run: Any) -> tuple[float, float, float] | None:
-    """The up direction of a run's world (:func:`data_up` of its data)."""
-    return data_up(Path(run.data))
-
-
-def data_up(data: Path) -> tuple[float, float, float] | None:
-    """The up direction of a dataset's world, ``data`` its folder, a transforms file or a mesh file in it: z for a
-    dataset of `nerfedit generate` (its config.yml records the generator's options; its world is z-up by
-    construction), else the consensus of the training cameras (:func:`~nerfedit_plugin.data.datasets.world_up`); a
-    mesh shares the world of the dataset it sits in (a generated dataset's mesh.ply), else None (unknown)."""
-    from nerfedit_plugin.data.datasets import read_transforms, transforms_file, world_up
-
-    folder = data.parent if data.is_file() else data
-    generated = folder / CONFIG
-    if generated.is_file():
-        try:
-            record = yaml.safe_load(generated.read_text()) or {}
-        except (OSError, UnicodeDecodeError, yaml.YAMLError):  # another tool's config.yml: no say on the up
-            record = {}
-        if isinstance(record, dict) and {"up_axis", "n_train", "resolution"} <= record.keys():
-            return (0.0, 0.0, 1.0)
-    try:
-        transforms = read_transforms(transforms_file(folder if data.suffix != ".json" else data, "train"), "train")
-    except NerfEditError:
-        return None
-    return world_up(transforms.cameras)
-
-
 def _up(args: ViewArgs, run: Any, mesh: str | None) -> tuple[float, float, float]:
     """``--up``, else the up of the run's dataset or of the dataset the mesh file sits in, else y."""
+    from nerfedit_plugin.pipeline.run import data_up
+
     if args.up is not None:
         return args.up
     source = Path(run.data) if run is not None else None
@@ -128,7 +84,8 @@ def _up(args: ViewArgs, run: Any, mesh: str | None) -> tuple[float, float, float
 
 def view(args: ViewArgs) -> None:
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.pipeline.edit import EditFolder
+    from nerfedit_plugin.pipeline.run import open_run
     from nerfedit_plugin.viewer.layers import edit_geometries, screenshot, show
 
     if args.edit is None and args.screenshot is None:
@@ -152,9 +109,10 @@ def view(args: ViewArgs) -> None:
         return
     mesh, run = args.mesh, None
     if mesh is None and args.edit is not None:
-        mesh, run_path = edit_source(args.edit)
-        if mesh is None and run_path is not None:
-            run = open_run(run_path)
+        folder = EditFolder.open(args.edit)
+        mesh = folder.mesh
+        if mesh is None and folder.run is not None:
+            run = open_run(folder.run)
     if mesh is None and run is None:
         raise NerfEditError("view: give --mesh MESH (or --edit EDIT_DIR of an edit made with --mesh or --run)")
     rest = run.mesh() if run is not None else SurfaceMesh.load(mesh)
@@ -203,7 +161,7 @@ def edit(args: ViewArgs) -> None:
 def _source(args: ViewArgs) -> tuple[Any, Any]:
     """``(run or None, rest mesh)`` of the editor: ``--mesh``, or ``--run``'s mesh."""
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.pipeline.run import open_run
 
     if (args.mesh is None) == (args.run is None):
         raise NerfEditError("view: give --mesh MESH or --run RUN to edit (or --edit EDIT_DIR to look at an edit)")

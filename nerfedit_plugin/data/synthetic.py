@@ -327,16 +327,3 @@ def render_ground_truth(
             f"deformed vertices: expected shape {mesh.vertices.shape} (the mesh's vertices), got {deformed.shape}"
         )
     return render_mesh_views(mesh.with_vertices(deformed), transforms, out_dir, supersample, overwrite)
-
-
-def __getattr__(name: str):
-    """``render_views``, this function's former name, is :func:`render_mesh_views` with a DeprecationWarning (the
-    package's ``render_views`` renders a field)."""
-    if name == "render_views":
-        import warnings
-
-        warnings.warn(
-            "nerfedit_plugin.data.synthetic.render_views is now render_mesh_views", DeprecationWarning, stacklevel=2
-        )
-        return render_mesh_views
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -379,8 +379,8 @@ def run_objects_edit(
     """Run a scene edit (module docstring) end to end → ``(out, report)``. Writes ``deformation.npz`` (format 2),
     ``deformed_mesh.ply`` (the whole edited scene; sequences ``deformed_mesh_0000.ply`` …), the spec, ``config.yml``,
     ``report.json`` and each deformer's artifacts under ``objects/<instance>/``. ``base``: as
-    :func:`~nerfedit_plugin.edit.job.run_edit`'s (a :class:`~nerfedit_plugin.edit.job.Base`); so are ``on_stage`` and
-    ``on_progress`` (stages ``proxy NAME``, ``edit NAME``, ``own NAME`` per object)."""
+    :func:`~nerfedit_plugin.pipeline.edit.run_edit`'s (a :class:`~nerfedit_plugin.pipeline.edit.Base`); so are
+    ``on_stage`` and ``on_progress`` (stages ``proxy NAME``, ``edit NAME``, ``own NAME`` per object)."""
     lift_config = LiftConfig() if lift_config is None else lift_config
     proxy_config = ProxyConfig() if proxy_config is None else proxy_config
     clock = Stopwatch(on_stage, on_progress=on_progress)

@@ -1,8 +1,14 @@
 """The Field contract (entry-point group ``nerfedit.fields``): a radiance field in canonical space.
 
-Required: :meth:`Field.query` and :meth:`Field.extract_mesh`; image-trained fields (``data = "images"``) also
-:meth:`Field.fit`, mesh-built ones (``data = "mesh"``) :meth:`Field.from_mesh`. All rendering goes through the one
-shared renderer (:func:`nerfedit_plugin.render.renderer.render_image`), which bends rays before calling ``query``.
+Required: :meth:`Field.query` and :meth:`Field.extract_mesh`. A field declares its kind in two class attributes:
+
+- :attr:`Field.rendering` — ``"rays"``: the shared renderer (:func:`nerfedit_plugin.render.renderer.render_image`)
+  marches camera rays, bends their samples through a deformation's backward map and calls ``query``;
+  ``"primitives"``: the field draws itself from primitives it holds (:meth:`Field.render`), a deformation moving them.
+- :attr:`Field.sources` — what a run of the field is made from: ``"dataset"`` (images with cameras, optimised with
+  :meth:`Field.fit`) and/or ``"model"`` (a model file — a mesh, a splat file — read by :meth:`Field.from_file`, nothing
+  to fit). A run made from a model file has no cameras.
+
 (``fit``, not ``train``: ``torch.nn.Module.train`` already means "training mode".)
 """
 
@@ -11,13 +17,14 @@ from __future__ import annotations
 import abc
 import dataclasses
 import os
-from typing import Any, ClassVar
+from pathlib import Path
+from typing import Any, ClassVar, Literal
 
 import torch
 
 from nerfedit_plugin.config import InstantiateConfig
+from nerfedit_plugin.fields.checkpoint import load_field, save_field
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.checkpoint import load_field, save_field
 from nerfedit_plugin.registry import Registry
 
 
@@ -25,6 +32,10 @@ from nerfedit_plugin.registry import Registry
 class FieldConfig(InstantiateConfig):
     """Base config of every field backend (the first line of a backend's docstring is its description in
     ``nerfedit train --help``)."""
+
+
+Rendering = Literal["rays", "primitives"]
+Source = Literal["dataset", "model"]
 
 
 class Field(torch.nn.Module, metaclass=abc.ABCMeta):
@@ -41,10 +52,18 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
     the exact inside test, and the renderer moves each ray's first inside sample onto the surface crossing by
     bisection and queries the colour there once, instead of compositing every sample."""
 
-    data: ClassVar[str] = "images"
-    """What ``nerfedit train --data`` names: ``"images"`` (a dataset folder; the field is built with
-    ``config.setup(scene_bbox=...)`` and optimised with :meth:`fit`) or ``"mesh"`` (a mesh file; the field is built
-    with the classmethod ``from_mesh(mesh: SurfaceMesh, config)`` and has nothing to fit)."""
+    rendering: ClassVar[Rendering] = "rays"
+    """``"rays"``: rendered by the shared renderer through :meth:`query` (rays bent by a deformation's backward map);
+    ``"primitives"``: the field renders itself (:meth:`render`)."""
+
+    sources: ClassVar[frozenset[Source]] = frozenset({"dataset"})
+    """What ``nerfedit train --data`` may name: ``"dataset"`` (a dataset folder, transforms file or COLMAP workspace;
+    the field is built with ``config.setup(scene_bbox=...)`` and optimised with :meth:`fit`) and/or ``"model"`` (a
+    model file; the field is built by the classmethod :meth:`from_file` and has nothing to fit)."""
+
+    exact_mesh: ClassVar[bool] = False
+    """:meth:`extract_mesh` returns the mesh the field is made of (the ``mesh`` field), not a level set: a run of it
+    holds its ``mesh.ply`` from the start, and extraction has nothing to do."""
 
     def __init__(self, config: FieldConfig, scene_bbox: torch.Tensor) -> None:
         super().__init__()
@@ -90,22 +109,28 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
         raise NotImplementedError(f"{type(self).__name__} is not an SDF field")
 
     def fit(self, dataset: Any, **kwargs: Any) -> dict:
-        """``data = "images"`` fields: optimise on a :class:`nerfedit_plugin.data.datasets.Dataset` (keyword
+        """Fields made from a ``"dataset"``: optimise on a :class:`nerfedit_plugin.data.datasets.Dataset` (keyword
         ``eval_dataset`` for a held-out curve); returns a log (loss/PSNR per step)."""
-        if self.data == "images":
-            raise NotImplementedError(f"{type(self).__name__} has data = 'images' but does not implement fit()")
-        raise NotImplementedError(f"{type(self).__name__} is not trained on images (data = {self.data!r})")
+        if "dataset" in self.sources:
+            raise NotImplementedError(f"{type(self).__name__} is made from a dataset but does not implement fit()")
+        raise NotImplementedError(f"{type(self).__name__} is not trained on a dataset (sources = {set(self.sources)})")
 
     @classmethod
-    def from_mesh(cls, mesh: SurfaceMesh, config: FieldConfig | None = None) -> Field:
-        """``data = "mesh"`` fields: build the field from a (vertex-coloured) mesh; nothing to fit."""
-        if cls.data == "mesh":
-            raise NotImplementedError(f"{cls.__name__} has data = 'mesh' but does not implement from_mesh()")
-        raise NotImplementedError(f"{cls.__name__} is not built from a mesh (data = {cls.data!r})")
+    def from_file(cls, path: Path, config: FieldConfig | None = None) -> Field:
+        """Fields made from a ``"model"``: build the field from the model file ``path`` (a bad file is a
+        :class:`~nerfedit_plugin.errors.NerfEditError` naming it); nothing to fit."""
+        if "model" in cls.sources:
+            raise NotImplementedError(f"{cls.__name__} is made from a model file but does not implement from_file()")
+        raise NotImplementedError(f"{cls.__name__} is not made from a model file (sources = {set(cls.sources)})")
+
+    def render(self, cameras: Any, index: int, config: Any, deformation: Any = None, frame: int = 0) -> torch.Tensor:
+        """Fields with ``rendering = "primitives"``: the ``(H,W,3)`` image of camera ``index`` of ``cameras``, the
+        primitives moved by ``deformation`` (a :class:`~nerfedit_plugin.bending.maps.ForwardMap`) at ``frame``."""
+        raise NotImplementedError(f"{type(self).__name__} is rendered by ray marching (rendering = {self.rendering!r})")
 
     def save(self, path: str | os.PathLike, registry: Registry | None = None) -> None:
         """Checkpoint (``field.pt``): backend name, config, scene box and state dict, written atomically
-        (format: :mod:`nerfedit_plugin.io.checkpoint`)."""
+        (format: :mod:`nerfedit_plugin.fields.checkpoint`)."""
         save_field(self, path, registry)
 
     @classmethod

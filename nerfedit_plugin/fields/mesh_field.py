@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -32,10 +33,16 @@ class MeshFieldConfig(FieldConfig):
     """Density returned inside the mesh (volume rendering of it is opaque within a few samples)."""
     padding: float = 0.05
     """Scene box of a mesh = its bounding box grown by this fraction of its diagonal on every side."""
+    color: tuple[float, float, float] | None = None
+    """RGB in [0, 1] given to every vertex of a mesh without vertex colours (a mesh with colours keeps its own);
+    default: such a mesh is refused."""
 
     def __post_init__(self) -> None:
         check_option(self, "density", self.density, 0 < self.density < math.inf, "a positive number")
         check_option(self, "padding", self.padding, 0 <= self.padding < math.inf, "a number >= 0")
+        if self.color is not None:
+            ok = len(self.color) == 3 and all(0 <= c <= 1 for c in self.color)
+            check_option(self, "color", self.color, ok, "three numbers in [0, 1]")
 
 
 class MeshField(Field):
@@ -46,7 +53,8 @@ class MeshField(Field):
     kind: ClassVar[str] = "density"
     opaque: ClassVar[bool] = True
     view_dependent: ClassVar[bool] = False  # the colour of the closest surface point
-    data: ClassVar[str] = "mesh"
+    sources: ClassVar[frozenset[str]] = frozenset({"model"})
+    exact_mesh: ClassVar[bool] = True
 
     def __init__(self, config: MeshFieldConfig, scene_bbox: torch.Tensor) -> None:
         super().__init__(config, scene_bbox)
@@ -56,12 +64,25 @@ class MeshField(Field):
         self._scene = None
 
     @classmethod
+    def from_file(cls, path: Path, config: MeshFieldConfig | None = None) -> MeshField:
+        """The field of the mesh file ``path`` (PLY/OBJ/OFF/GLB): :meth:`from_mesh` of it."""
+        mesh = SurfaceMesh.load(path)
+        try:
+            return cls.from_mesh(mesh, config)
+        except NerfEditError as exc:
+            raise NerfEditError(f"{path}: {exc}") from None
+
+    @classmethod
     def from_mesh(cls, mesh: SurfaceMesh, config: MeshFieldConfig | None = None) -> MeshField:
-        """The field of ``mesh`` (must have vertex colours), scene box = bbox ± ``config.padding`` × diagonal."""
+        """The field of ``mesh`` (its vertex colours, else ``config.color``), scene box = bbox ± ``config.padding`` ×
+        diagonal."""
         config = MeshFieldConfig() if config is None else config
+        if mesh.vertex_colors is None and config.color is not None:
+            colors = np.tile(np.asarray(config.color, dtype=np.float64), (mesh.n_vertices, 1))
+            mesh = SurfaceMesh(mesh.vertices, mesh.faces, colors)
         if mesh.vertex_colors is None:
             raise NerfEditError(
-                "mesh field: the mesh has no vertex colours (see nerfedit_plugin.data.synthetic.colorize)"
+                "mesh field: the mesh has no vertex colours (give every vertex one with --field-options.color R G B)"
             )
         if len(mesh.faces) == 0:
             raise NerfEditError("mesh field: the mesh has no triangles")

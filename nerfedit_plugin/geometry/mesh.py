@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.geometry.samples import resolve_mesh_path
 from nerfedit_plugin.io.atomic import atomic_path
-from nerfedit_plugin.io.samples import resolve_mesh_path
 
 
 def _read_ply_open3d(path: Path) -> SurfaceMesh | None:

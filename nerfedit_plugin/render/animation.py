@@ -7,7 +7,7 @@ of a transforms file for every frame; ``orbit`` — one turn around the scene bo
 
 :func:`render_animation` writes ``OUT/frame_NNNN.png`` (NNNN the deformation frame, or the shot when a frame is
 shown more than once) through an executor
-(:mod:`nerfedit_plugin.render.executors`) into the output's staging folder, which is marked partial first with the
+(:mod:`nerfedit_plugin.pipeline.executors`) into the output's staging folder, which is marked partial first with the
 settings' key: an interrupted render leaves a partial output (docs/reliability.md), and ``resume`` continues it,
 rendering only the shots whose PNG is missing (refused when the settings differ). Each PNG is written atomically,
 so a frame on disk is whole; the video files and ``config.yml`` come last, then the marker goes.

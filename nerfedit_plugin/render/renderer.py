@@ -20,6 +20,7 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
+from nerfedit_plugin.bending.maps import BackwardMap
 from nerfedit_plugin.data.cameras import Cameras, generate_rays
 from nerfedit_plugin.fields.base import Field
 
@@ -75,7 +76,7 @@ class _Kept(NamedTuple):
     jacobian: torch.Tensor | None
 
 
-def sampling_box(field: Field, deformation=None, frame: int = 0) -> torch.Tensor:
+def sampling_box(field: Field, deformation: BackwardMap | None = None, frame: int = 0) -> torch.Tensor:
     """field, deformation (or None), frame → ``(2,3)`` box (``scene_bbox``'s dtype and device) rays are clipped to:
     ``scene_bbox`` ∪ the box of the tets that ``frame`` moves (:meth:`DeformationField.moved_bounds`; elsewhere the
     scene is where it was, so an identity edit samples every ray exactly as the unedited render does)."""
@@ -97,7 +98,9 @@ def ray_box(origins: torch.Tensor, directions: torch.Tensor, box: torch.Tensor) 
     return near, far
 
 
-def _keep(field: Field, points: torch.Tensor, deformation, frame: int, jacobian: bool = True) -> _Kept:
+def _keep(
+    field: Field, points: torch.Tensor, deformation: BackwardMap | None, frame: int, jacobian: bool = True
+) -> _Kept:
     """Bend flat samples to canonical space and keep those neither empty (vacated) nor rejected by
     ``field.occupied`` (one mask, one ``nonzero``); the Jacobians are gathered for the kept samples only (not at
     all without ``jacobian``). An opaque field's ``occupied`` is its exact inside test, dear per sample: it skips
@@ -140,7 +143,7 @@ def render_rays(
     directions: torch.Tensor,
     config: RenderConfig,
     *,
-    deformation=None,
+    deformation: BackwardMap | None = None,
     frame: int = 0,
     stratified: bool = False,
     bounds: tuple[torch.Tensor, torch.Tensor] | None = None,
@@ -214,7 +217,17 @@ def _with_background(model, box, origins, directions, t, delta, stratified: bool
     )
 
 
-def _samples(field: Field, origins, directions, t, delta, config: RenderConfig, deformation, frame, outside=None):
+def _samples(
+    field: Field,
+    origins,
+    directions,
+    t,
+    delta,
+    config: RenderConfig,
+    deformation: BackwardMap | None,
+    frame,
+    outside=None,
+):
     """Opacity ``(A,S)`` and colour ``(A,S,3)`` of the samples at distances ``t (A,S)`` of rays ``(A,3)`` with bin
     widths ``delta (A,S)`` (bent, packed, queried; dropped samples get α = 0). ``outside`` = (background model, whose
     ``(A,S)``: −1 for the field's samples, else the model's kind): the model's are queried from it at their unbent
@@ -270,13 +283,13 @@ def _sdf_alpha(
     return ((prev - after + 1e-5) / (prev + 1e-5)).clamp(0.0, 1.0), rgb
 
 
-def _inside(field: Field, points: torch.Tensor, deformation, frame: int) -> torch.Tensor:
+def _inside(field: Field, points: torch.Tensor, deformation: BackwardMap | None, frame: int) -> torch.Tensor:
     """Bent exact inside test of an opaque field at points ``(M,3)`` in deformed space."""
     inside = torch.zeros(len(points), dtype=torch.bool, device=points.device)
     return inside.index_fill_(0, _keep(field, points, deformation, frame, jacobian=False).index, True)
 
 
-def _first_inside(field: Field, origins, directions, t, deformation, frame) -> torch.Tensor:
+def _first_inside(field: Field, origins, directions, t, deformation: BackwardMap | None, frame) -> torch.Tensor:
     """Index ``(R,)`` of each ray's first inside sample (−1 if none), marching front to back ``OPAQUE_SEGMENT``
     samples at a time: rays stop being evaluated once they have hit (nothing behind the surface is bent)."""
     n_rays, n = t.shape
@@ -296,7 +309,7 @@ def _first_inside(field: Field, origins, directions, t, deformation, frame) -> t
 
 
 def _render_opaque(
-    field: Field, origins, directions, near, t, background, config: RenderConfig, deformation, frame
+    field: Field, origins, directions, near, t, background, config: RenderConfig, deformation: BackwardMap | None, frame
 ) -> RenderOutput:
     """First surface crossing of each ray, refined; one colour query there (see the module docstring)."""
     n_rays = len(t)
@@ -333,14 +346,19 @@ def render_image(
     index: int,
     config: RenderConfig,
     *,
-    deformation=None,
+    deformation: BackwardMap | None = None,
     frame: int = 0,
     supersample: int = 1,
 ) -> torch.Tensor:
     """Render camera ``index`` of ``cameras`` → ``(H,W,3)`` rgb in [0,1] (the rays' dtype, float32 for the built-in
     cameras) on the field's device, in chunks of ``config.chunk`` rays, without autograd. ``supersample`` s: s×s
-    stratified sub-pixel rays per pixel, averaged (``Cameras.upscale``)."""
+    stratified sub-pixel rays per pixel, averaged (``Cameras.upscale``). A field that renders itself
+    (``rendering == "primitives"``) draws the image with :meth:`~nerfedit_plugin.fields.base.Field.render`."""
     fine = cameras.upscale(supersample) if supersample > 1 else cameras
+    s, h, w = supersample, cameras.height, cameras.width
+    if field.rendering == "primitives":
+        image = field.render(fine, index, config, deformation=deformation, frame=frame)
+        return image.reshape(h, s, w, s, 3).mean((1, 3))
     origins, directions = generate_rays(fine, index)
     origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
     device = field.scene_bbox.device
@@ -357,5 +375,4 @@ def render_image(
             for start in range(0, len(origins), config.chunk)
         ]
     )
-    s, h, w = supersample, cameras.height, cameras.width
     return rgb.view(h, s, w, s, 3).mean((1, 3))

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from nerfedit_plugin.bending.maps import BackwardMap
 from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.data.datasets import to_uint8
 from nerfedit_plugin.fields.base import Field
@@ -34,7 +35,7 @@ def render_views(
     cameras: Cameras,
     config: RenderConfig,
     *,
-    deformation=None,
+    deformation: BackwardMap | None = None,
     frame: int = 0,
     supersample: int = 1,
     progress: bool = True,

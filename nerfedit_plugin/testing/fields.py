@@ -39,8 +39,8 @@ from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.fields.checkpoint import backend_name, load_field
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.checkpoint import backend_name, load_field
 from nerfedit_plugin.render.renderer import RenderConfig, render_image
 from nerfedit_plugin.testing.deformers import check_documented_round_trip, default_mesh, select_checks
 
@@ -58,12 +58,15 @@ def coloured_mesh() -> SurfaceMesh:
 
 
 def build_field(config: FieldConfig) -> Field:
-    """The field the kit tests: ``from_mesh(coloured_mesh())`` for ``data == "mesh"``, else
-    ``config.setup(scene_bbox=BOX)`` (the backend's initial state)."""
+    """The field the kit tests: ``config.setup(scene_bbox=BOX)`` (the backend's initial state) for a field made from
+    a dataset, else ``from_file`` of the kit's model file, :func:`coloured_mesh` written as a PLY."""
     target = config._target
-    if target.data == "mesh":
-        return target.from_mesh(coloured_mesh(), config)
-    return config.setup(scene_bbox=BOX.clone())
+    if "dataset" in target.sources:
+        return config.setup(scene_bbox=BOX.clone())
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "model.ply"
+        coloured_mesh().save(path)
+        return target.from_file(path, config)
 
 
 def _probe(n: int = 2000, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
@@ -81,13 +84,21 @@ def check_config(config: Any) -> None:
     target = config._target
     assert isinstance(target, type) and issubclass(target, Field), f"{name}._target is {target!r}, not a Field"
     assert target.kind in ("density", "sdf"), f"{target.__name__}.kind must be 'density' or 'sdf', not {target.kind!r}"
-    assert target.data in ("images", "mesh"), f"{target.__name__}.data must be 'images' or 'mesh', not {target.data!r}"
-    if target.data == "mesh":
-        assert target.from_mesh.__func__ is not Field.from_mesh.__func__, (
-            f"{target.__name__}: data='mesh' needs from_mesh()"
+    sources = set(target.sources)
+    assert sources and sources <= {"dataset", "model"}, (
+        f"{target.__name__}.sources must be a non-empty subset of {{'dataset', 'model'}}, not {sources}"
+    )
+    if "model" in sources:
+        assert target.from_file.__func__ is not Field.from_file.__func__, (
+            f"{target.__name__}: sources has 'model', which needs from_file()"
         )
-    else:
-        assert target.fit is not Field.fit, f"{target.__name__}: data='images' needs fit()"
+    if "dataset" in sources:
+        assert target.fit is not Field.fit, f"{target.__name__}: sources has 'dataset', which needs fit()"
+    assert target.rendering in ("rays", "primitives"), (
+        f"{target.__name__}.rendering must be 'rays' or 'primitives', not {target.rendering!r}"
+    )
+    if target.rendering == "primitives":
+        assert target.render is not Field.render, f"{target.__name__}: rendering = 'primitives' needs render()"
     check_documented_round_trip(config)
 
 

@@ -16,11 +16,11 @@ import torch
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.data.cameras import Cameras
-from nerfedit_plugin.edit.job import default_cache_dir
 from nerfedit_plugin.edit.lift import Lift, LiftConfig
 from nerfedit_plugin.edit.proxy import ProxyConfig, cached_proxy
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.run import Run
+from nerfedit_plugin.pipeline.edit import default_cache_dir
+from nerfedit_plugin.pipeline.run import Run
 from nerfedit_plugin.render.renderer import render_image
 from nerfedit_plugin.render.views import default_render_config
 from nerfedit_plugin.viewer.picking import View

@@ -6,8 +6,9 @@ import torch
 from locator_checks import assert_primaries_tie
 from scipy.spatial.transform import Rotation
 
-from nerfedit_plugin.bending.deformation_field import BentPoints, DeformationField
+from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.locate import TetLocator
+from nerfedit_plugin.bending.maps import BentPoints
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
 

@@ -9,9 +9,9 @@ import skimage.io
 import trimesh
 
 from nerfedit_plugin.cli.app import main
-from nerfedit_plugin.cli.view import edit_source, run_up
 from nerfedit_plugin.data.synthetic import colorize
-from nerfedit_plugin.io.run import open_run
+from nerfedit_plugin.pipeline.edit import EditFolder
+from nerfedit_plugin.pipeline.run import open_run
 
 EDIT = {
     "handles": [
@@ -69,8 +69,9 @@ def test_train_then_extract_finds_the_run_and_keeps_the_mesh_fields_own_mesh(flo
 
 
 def test_view_of_an_edit_made_with_run_takes_the_runs_mesh_and_up(flow, tmp_path):
-    assert edit_source(flow / "edit") == (None, flow / "run")
-    assert run_up(open_run(flow / "run")) == (0.0, 0.0, 1.0)  # generated data: z-up
+    edit = EditFolder.open(flow / "edit")
+    assert (edit.mesh, edit.run) == (None, flow / "run")
+    assert open_run(flow / "run").up() == (0.0, 0.0, 1.0)  # generated data: z-up
     extents = {}
     for name, up in (("auto", []), ("y", ["--up", 0, 1, 0])):
         shot = tmp_path / f"{name}.png"
@@ -121,7 +122,7 @@ def test_load_config_of_each_recording_command_reruns_it(flow, tmp_path, proxy_c
     run("train", "--load-config", flow / "run", "--out", tmp_path / "run")
     assert open_run(tmp_path / "run").mesh().n_vertices == open_run(flow / "run").mesh().n_vertices
     run("edit", "--load-config", flow / "edit", "--out", tmp_path / "edit")
-    assert edit_source(tmp_path / "edit") == (None, flow / "run")
+    assert (EditFolder.open(tmp_path / "edit").mesh, EditFolder.open(tmp_path / "edit").run) == (None, flow / "run")
     run("render", "--load-config", flow / "renders" / "config.yml", "--out", tmp_path / "renders")
     assert pngs(tmp_path / "renders") == pngs(flow / "renders")
 

@@ -6,53 +6,50 @@ import pytest
 import yaml
 from scene_meshes import floor_scene
 
-import nerfedit_plugin.io.run
 from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.pipeline.run import Run
 
 SCENE = floor_scene()
 
 
+class SceneField:
+    """Stands in for a trained field whose marching cubes give the scene."""
+
+    def extract_mesh(self, resolution, level):
+        return SCENE.mesh
+
+
 @pytest.fixture
 def run(tmp_path, monkeypatch):
-    """A trained field's run whose extraction gives the scene (its largest part with ``largest_component``);
-    ``calls`` records that flag."""
+    """A trained field's run whose extraction gives the scene."""
     folder = tmp_path / "run"
     folder.mkdir()
     (folder / "config.yml").write_text(yaml.safe_dump({"field": "nerf", "data": ".", "field_config": {}}))
-    calls = []
-
-    def extract_mesh(run, resolution, level, *, largest_component, overwrite, clean):
-        calls.append(largest_component)
-        mesh = SCENE.mesh.largest_component() if largest_component else SCENE.mesh
-        (mesh if clean is None else clean(mesh)).save(run.mesh_path)
-        return run.mesh_path
-
-    monkeypatch.setattr(nerfedit_plugin.io.run, "extract_mesh", extract_mesh)
-    return folder, calls
+    monkeypatch.setattr(Run, "field", lambda self, device=None, registry=None: SceneField())
+    return folder, None
 
 
 def test_default_output_is_the_extraction_unchanged(run):
-    folder, calls = run
+    folder, _ = run
     assert main(["extract", "--run", str(folder)]) == 0
-    assert calls == [True]
     assert SurfaceMesh.load(folder / "mesh.ply").n_vertices == SCENE.mesh.n_vertices - len(SCENE.floater)
 
 
 def test_drop_plane_leaves_the_objects(run):
-    folder, calls = run
+    folder, _ = run
     assert main(["extract", "--run", str(folder), "--drop-plane"]) == 0
     mesh, boxes = SurfaceMesh.load(folder / "mesh.ply"), np.concatenate(SCENE.boxes)
-    assert calls == [True]  # the floaters went with the largest part: the floor holds the objects
+    # the floaters went with the largest part: the floor holds the objects
     np.testing.assert_allclose(mesh.vertices, SCENE.mesh.vertices[boxes])
     np.testing.assert_allclose(mesh.vertex_colors, SCENE.mesh.vertex_colors[boxes], atol=1 / 255)
     assert mesh.component_labels().max() + 1 == 2
 
 
 def test_drop_floaters_keeps_parts_above_the_fraction(run):
-    folder, calls = run
+    folder, _ = run
     assert main(["extract", "--run", str(folder), "--drop-plane", "--drop-floaters", "0.5"]) == 0
-    assert calls == [False]  # every part extracted, then the small ones dropped
+    # every part extracted, then the small ones dropped
     assert SurfaceMesh.load(folder / "mesh.ply").n_vertices == sum(len(box) for box in SCENE.boxes)
     assert main(["extract", "--run", str(folder), "--drop-floaters", "0", "--overwrite"]) == 0
     assert SurfaceMesh.load(folder / "mesh.ply").n_vertices == SCENE.mesh.n_vertices  # 0 keeps every part
@@ -73,24 +70,18 @@ def test_bad_fraction_is_an_option_error(tmp_path, capsys):
     assert "--drop-floaters: must be in [0, 1], got 1.5" in capsys.readouterr().err
 
 
-def test_the_clean_up_runs_before_the_one_write(tmp_path, capsys):
+def test_the_clean_up_runs_before_the_one_write(run, monkeypatch):
     """extract_mesh cleans the extraction before it writes mesh.ply: an interrupt cannot leave the uncleaned mesh
-    there, and a clean-up that fails leaves the previous file as it was (a mesh field's run: its field extracts)."""
+    there, and a clean-up that fails leaves the previous file as it was."""
     from nerfedit_plugin.errors import NerfEditError
-    from nerfedit_plugin.geometry.cleanup import drop_plane
-    from nerfedit_plugin.io.run import extract_mesh, open_run
+    from nerfedit_plugin.pipeline.extract import extract_mesh
+    from nerfedit_plugin.pipeline.run import open_run
 
-    SCENE.mesh.save(tmp_path / "scene.ply")
-    assert main(["train", "--field", "mesh", "--data", str(tmp_path / "scene.ply"), "--out", str(tmp_path / "r")]) == 0
-    run = open_run(tmp_path / "r")
-    before = run.mesh_path.read_bytes()
-
-    def fail(mesh):
-        raise NerfEditError("nothing left")
-
-    with pytest.raises(NerfEditError, match="nothing left"):
-        extract_mesh(run, overwrite=True, clean=fail)
-    assert run.mesh_path.read_bytes() == before
-    extract_mesh(run, overwrite=True, clean=drop_plane)
-    kept = np.concatenate([*SCENE.boxes, SCENE.floater])  # the floor dropped (a mesh field keeps every other part)
-    np.testing.assert_allclose(SurfaceMesh.load(run.mesh_path).vertices, SCENE.mesh.vertices[np.sort(kept)])
+    folder, _ = run
+    assert main(["extract", "--run", str(folder)]) == 0
+    before = (folder / "mesh.ply").read_bytes()
+    square = SurfaceMesh(np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    monkeypatch.setattr(SceneField, "extract_mesh", lambda self, resolution, level: square)  # all floor
+    with pytest.raises(NerfEditError, match="nothing is left after the clean-up"):
+        extract_mesh(open_run(folder), overwrite=True, drop_plane=True)
+    assert (folder / "mesh.ply").read_bytes() == before

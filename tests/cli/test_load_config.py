@@ -15,7 +15,7 @@ from nerfedit_plugin.cli.app import command, main
 from nerfedit_plugin.cli.common import _import, parse
 from nerfedit_plugin.data.synthetic import colorize
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.run import open_run
+from nerfedit_plugin.pipeline.run import open_run
 
 DATA = Path(__file__).parent / "data"
 EDIT = {  # the edit.json of tests/cli/data/v0.1.0_edit_config.yml
@@ -70,7 +70,20 @@ def test_edit_reruns_from_its_config_in_another_folder(workdir, tmp_path, monkey
     assert _same_mesh(workdir / "a" / "deformed_mesh.ply", elsewhere / "b" / "deformed_mesh.ply")
     again = _config(elsewhere / "b")
     assert again.pop("out") == str(elsewhere / "b") and again.pop("load_config") == str(workdir / "a" / "config.yml")
-    assert again == {k: v for k, v in recorded.items() if k not in ("out", "load_config")}
+    assert recorded["proxy_from"] == str(workdir / "a") and again.pop("proxy_from") == str(elsewhere / "b")
+    assert again == {k: v for k, v in recorded.items() if k not in ("out", "load_config", "proxy_from")}
+
+
+def test_an_edit_reruns_bit_for_bit_from_its_config_with_an_empty_proxy_cache(workdir, tmp_path, monkeypatch):
+    """pytetwild draws another proxy in every process: config.yml names the edit's own proxy (proxy_from), so the
+    re-run needs no cache and gives the same deformation.npz."""
+    assert main(["edit", "--mesh", "capsule.ply", "--edit", "edit.json", "--out", "a"]) == 0
+    monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "empty-cache"))
+    assert main(["edit", "--load-config", str(workdir / "a" / "config.yml"), "--out", "b"]) == 0
+    assert (workdir / "b" / "deformation.npz").read_bytes() == (workdir / "a" / "deformation.npz").read_bytes()
+    assert not (tmp_path / "empty-cache").exists() or not any((tmp_path / "empty-cache").iterdir())
+    report = json.loads((workdir / "b" / "report.json").read_text())
+    assert report["proxy"]["reused_from"] == str(workdir / "a")
 
 
 def test_flags_override_the_loaded_config_and_overwrite_is_never_loaded(workdir):
@@ -216,11 +229,7 @@ def test_configs_of_nerfedit_0_1_0_rerun(workdir, capsys):
     assert "warning" not in capsys.readouterr().err  # the recorded _target classes import back as they are
 
 
-def test_recorded_target_resolves_through_the_moved_module_aliases(workdir, capsys):
-    from nerfedit_plugin.bending.deformation_field import DeformationField
-
-    with pytest.warns(DeprecationWarning):
-        assert _import("nerfedit_plugin.deformation_field.DeformationField") is DeformationField
+def test_a_recorded_target_that_is_not_the_plugins_class_warns(workdir, capsys):
     assert _import("nerfedit_plugin.nope.Nope") is None
     config = _config_copy(DATA / "v0.1.0_edit_config.yml", workdir / "moved.yml", "deformers.arap.Gone")
     args = parse(command("edit"), ["--load-config", str(config), "--out", "x"])
@@ -232,11 +241,3 @@ def _config_copy(source: Path, target: Path, new_target: str) -> Path:
     shutil.copyfile(source, target)
     target.write_text(target.read_text().replace("_target: deformers.arap.ArapDeformer", f"_target: {new_target}"))
     return target
-
-
-def test_usage_documents_every_moved_module():
-    from nerfedit_plugin._compat import MOVED, MOVED_PLUGINS
-
-    usage = (Path(__file__).parents[2] / "docs" / "usage.md").read_text().split("## Moved modules")[1]
-    usage = " ".join(usage.split())
-    assert all(f"`{old}` → `{new}`" in usage for old, new in (*MOVED.items(), *MOVED_PLUGINS.items()))

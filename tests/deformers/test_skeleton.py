@@ -14,7 +14,7 @@ from deformers.skeleton import Skeleton, SkeletonConfig, SkeletonDeformer, close
 from nerfedit_plugin.edit.spec import load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.samples import sample_mesh_path
+from nerfedit_plugin.geometry.samples import sample_mesh_path
 from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.testing import parametrize_with_checks
 

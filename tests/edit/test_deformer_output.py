@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.edit.job import run_edit
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.pipeline.edit import run_edit
 
 
 class Lift01(Deformer):

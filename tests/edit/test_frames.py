@@ -76,7 +76,7 @@ def test_the_bunny_config_edits_the_runs_bunny_as_it_edits_the_sample(tmp_path):
     from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
     from nerfedit_plugin.fields.mesh_field import MeshFieldConfig
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.run import train_run
+    from nerfedit_plugin.pipeline.train import train_run
 
     config = Path(__file__).resolve().parents[2] / "configs" / "arap_bunny_ears.json"
     data = generate_dataset(GenerateConfig(out=tmp_path / "data", n_train=1, n_val=1, n_test=1, resolution=8))
@@ -104,7 +104,7 @@ def test_edit_exports_its_deformed_meshes_in_the_capture_frame(capsule_flow, pro
     generator's source) coordinates: the run's source transform maps them back onto the edit's own meshes."""
     from nerfedit_plugin.cli.app import main
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.io.run import open_run
+    from nerfedit_plugin.pipeline.run import open_run
 
     argv = ["edit", "--run", capsule_flow / "run", "--edit", capsule_flow / "edit.json", "--out", tmp_path / "edit"]
     assert main([str(a) for a in [*argv, "--cache-dir", proxy_cache, "--frame", "capture"]]) == 0

@@ -8,8 +8,8 @@ import numpy as np
 
 from deformers.arap import ArapConfig
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.edit.job import run_edit
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.pipeline.edit import run_edit
 
 BEND = {
     "handles": [

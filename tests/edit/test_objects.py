@@ -15,10 +15,10 @@ from scipy.spatial.transform import Rotation
 from nerfedit_plugin.bending.scene_deformation import SceneDeformation, load_deformation
 from nerfedit_plugin.data.cameras import Cameras, sphere_poses
 from nerfedit_plugin.data.synthetic import colorize, render_mesh
-from nerfedit_plugin.edit.job import Base, run_edit
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.mesh_field import MeshField
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.pipeline.edit import Base, run_edit
 from nerfedit_plugin.render.views import default_render_config, render_views
 from nerfedit_plugin.training.metrics import psnr
 

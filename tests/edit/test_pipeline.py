@@ -12,7 +12,7 @@ import torch
 from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.data.synthetic import render_ground_truth
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.run import open_run
+from nerfedit_plugin.pipeline.run import open_run
 
 EDIT = {
     "handles": [

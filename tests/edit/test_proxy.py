@@ -421,7 +421,7 @@ def test_rerun_with_proxy_from_is_bit_identical(tmp_path, capsule):
     """pytetwild is random (two cold builds differ), so a re-run reuses the proxy of the edit: in a fresh process,
     cold cache, the same deformation.npz byte for byte. Another mesh or other proxy settings are refused."""
     from nerfedit_plugin.cli.app import main
-    from nerfedit_plugin.edit.job import reuse_proxy
+    from nerfedit_plugin.pipeline.edit import reuse_proxy
 
     capsule.save(tmp_path / "capsule.ply")
     edit = {

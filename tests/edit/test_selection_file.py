@@ -91,8 +91,8 @@ def test_an_edit_folder_keeps_the_selection_files_its_spec_names(capsule, tmp_pa
     ``..``, leaving the folder or passing through a link, becomes absolute in the copy): the copy in the edit folder
     selects the same vertices (the editor saves its selections beside the spec it writes)."""
     from deformers.arap import ArapConfig
-    from nerfedit_plugin.edit.job import run_edit
     from nerfedit_plugin.edit.spec import load_edit_spec
+    from nerfedit_plugin.pipeline.edit import run_edit
 
     folder = tmp_path / "spec"
     bottom, top = np.flatnonzero(capsule.vertices[:, 2] < -0.9), np.flatnonzero(capsule.vertices[:, 2] > 0.9)

@@ -9,8 +9,8 @@ import numpy as np
 import yaml
 
 from deformers.mesh import MeshConfig
-from nerfedit_plugin.edit.job import run_edit
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.pipeline.edit import run_edit
 
 
 def test_a_copied_spec_names_the_deformer_files_absolute_and_reruns(capsule, tmp_path, proxy_cache, monkeypatch):

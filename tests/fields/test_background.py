@@ -145,7 +145,7 @@ def tiny_floor_scene(tmp_path_factory):
 
 
 def test_training_on_a_scene_beats_the_constant_colour_and_the_model_round_trips(tiny_floor_scene, tmp_path):
-    from nerfedit_plugin.io.checkpoint import load_field
+    from nerfedit_plugin.fields.checkpoint import load_field
 
     train, test = load_dataset(tiny_floor_scene, "train"), load_dataset(tiny_floor_scene, "test")
     assert train.opaque

@@ -97,7 +97,7 @@ def test_carving_keeps_every_cell_of_the_object(tiny_scene):
 
 
 def test_training_improves_test_psnr_and_checkpoint_round_trips(tiny_scene, tmp_path):
-    from nerfedit_plugin.io.checkpoint import load_field
+    from nerfedit_plugin.fields.checkpoint import load_field
     from nerfedit_plugin.render.renderer import RenderConfig
 
     train, test = load_dataset(tiny_scene, "train"), load_dataset(tiny_scene, "test")

@@ -11,10 +11,10 @@ import torch
 from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.fields.checkpoint import load_field
 from nerfedit_plugin.fields.nerf import NerfConfig, NerfField
 from nerfedit_plugin.fields.neus import NeusConfig, NeusField
 from nerfedit_plugin.fields.occupancy import silhouette_depths
-from nerfedit_plugin.io.checkpoint import load_field
 from nerfedit_plugin.render.renderer import RenderConfig
 from nerfedit_plugin.training.trainer import evaluate
 

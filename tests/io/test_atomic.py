@@ -21,7 +21,7 @@ from nerfedit_plugin.io.atomic import (
     require_complete,
     write_text,
 )
-from nerfedit_plugin.io.run import open_run
+from nerfedit_plugin.pipeline.run import open_run
 
 
 @pytest.fixture(scope="module")

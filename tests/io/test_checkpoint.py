@@ -13,9 +13,9 @@ import trimesh
 from nerfedit_plugin.data.synthetic import colorize
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.fields.checkpoint import load_field, save_field
 from nerfedit_plugin.fields.mesh_field import MeshField, MeshFieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.checkpoint import load_field, save_field
 from nerfedit_plugin.registry import FIELDS, Plugin, Registry
 
 

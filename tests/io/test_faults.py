@@ -15,7 +15,7 @@ from nerfedit_plugin.cli.app import interrupts_raise, main
 from nerfedit_plugin.io import faults
 from nerfedit_plugin.io.atomic import PARTIAL, STAGING, atomic_dir, atomic_path, is_partial, mark_partial
 from nerfedit_plugin.io.faults import POINTS, InjectedFault, fault_point
-from nerfedit_plugin.io.run import open_run
+from nerfedit_plugin.pipeline.run import open_run
 
 
 @pytest.fixture

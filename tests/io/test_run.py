@@ -8,7 +8,9 @@ from nerfedit_plugin.data.synthetic import colorize
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.mesh_field import MeshFieldConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.io.run import extract_mesh, open_run, train_run
+from nerfedit_plugin.pipeline.extract import extract_mesh
+from nerfedit_plugin.pipeline.run import open_run
+from nerfedit_plugin.pipeline.train import train_run
 
 
 @pytest.fixture
@@ -22,7 +24,7 @@ def mesh_run(tmp_path, capsule):
 
 
 def test_mesh_run_holds_its_mesh_in_vertex_order(mesh_run, tmp_path):
-    assert mesh_run.from_mesh and mesh_run.mesh_path.is_file()
+    assert mesh_run.exact_mesh and mesh_run.mesh_path.is_file()
     mesh, source = mesh_run.mesh(), SurfaceMesh.load(tmp_path / "capsule.ply")
     assert np.array_equal(mesh.vertices, source.vertices) and np.array_equal(mesh.faces, source.faces)
     assert np.array_equal(mesh.vertex_colors, source.vertex_colors)
@@ -53,6 +55,6 @@ def test_extract_refuses_to_replace_a_trained_fields_mesh(tmp_path, capsule):
     (run / "config.yml").write_text(yaml.safe_dump({"field": "nerf", "data": ".", "field_config": {}}))
     capsule.save(run / "mesh.ply")
     opened = open_run(run)
-    assert not opened.from_mesh
+    assert not opened.exact_mesh
     with pytest.raises(NerfEditError, match="exists \\(pass --overwrite"):
         extract_mesh(opened)

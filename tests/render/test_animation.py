@@ -15,8 +15,8 @@ import torch
 from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.data.datasets import read_transforms
 from nerfedit_plugin.errors import NerfEditError
+from nerfedit_plugin.pipeline.executors import LocalExecutor, RayExecutor, RenderJob
 from nerfedit_plugin.render.animation import parse_frames, read_camera_path, trajectory
-from nerfedit_plugin.render.executors import LocalExecutor, RayExecutor, RenderJob
 
 
 def run(*argv):
@@ -125,7 +125,7 @@ def test_the_orbit_flies_where_the_training_cameras_stood(capsule_flow):
     """``Run.filming``: the orbit's cameras stand at the training cameras' median distance from the box centre, at
     their median elevation about the up direction, with their field of view (a run built from a mesh has no cameras:
     the default ring); the ring is perpendicular to ``up`` (also for another up than z)."""
-    from nerfedit_plugin.io.run import Run, open_run
+    from nerfedit_plugin.pipeline.run import Run, open_run
     from nerfedit_plugin.render.views import turntable_cameras
 
     images = Run(capsule_flow / "run", "nerf", capsule_flow / "data", {})  # as if trained on the images

@@ -99,7 +99,7 @@ def pixels(path):
 def test_the_view_is_upright_for_a_mesh_in_a_generated_dataset(capsule_flow, tmp_path):
     """A generated dataset's mesh.ply is z-up (the generator's world), as its runs are; a mesh elsewhere has no
     known up (the view's default y)."""
-    from nerfedit_plugin.cli.view import data_up
+    from nerfedit_plugin.pipeline.run import data_up
 
     assert data_up(capsule_flow / "data" / "mesh.ply") == (0.0, 0.0, 1.0)
     (tmp_path / "loose.ply").write_bytes((capsule_flow / "data" / "mesh.ply").read_bytes())

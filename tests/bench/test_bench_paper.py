@@ -1,14 +1,8 @@
 """bench/bench_paper.py end to end in its tiny variant (the exact mesh field: no training error), and its docs block."""
 
-import sys
-from pathlib import Path
-
+import bench_paper
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-import bench_paper  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -47,7 +47,7 @@ class ShotRenderer:
 
     def __init__(self, job: RenderJob) -> None:
         from nerfedit_plugin.bending.scene_deformation import load_deformation
-        from nerfedit_plugin.io.run import open_run
+        from nerfedit_plugin.pipeline.run import open_run
         from nerfedit_plugin.render.views import default_render_config
 
         torch.set_num_threads(job.threads)

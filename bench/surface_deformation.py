@@ -12,9 +12,8 @@ So a vertex of ``S'`` maps to its rest vertex and a translation of the whole sur
 Every point is mapped (none is empty) and the Jacobian is the identity: the baselines carry no view directions. The
 map jumps where the nearest triangle (the three nearest vertices) changes, the medial axis of ``S'`` included, and
 space a part moved away from maps to itself where the nearest part of ``S'`` did not move (the part shows there
-too): the artefacts the paper's proxy removes. The interface the renderer uses is
-:class:`~nerfedit_plugin.bending.deformation_field.DeformationField`'s: ``bend``, ``jacobian``, ``moved_bounds``,
-``to_canonical``, ``n_frames``. For the paper's comparisons (``bench/bench_paper.py``), not an edit's lift:
+too): the artefacts the paper's proxy removes. It is a :class:`~nerfedit_plugin.bending.maps.BackwardMap`, the
+interface the renderer uses. For the paper's comparisons (``bench/bench_paper.py``), not an edit's lift:
 docs/architecture.md, "Ray bending".
 """
 
@@ -26,7 +25,8 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from nerfedit_plugin.bending.deformation_field import MOVED_TOLERANCE, BentPoints, CanonicalPoints
+from nerfedit_plugin.bending.deformation_field import MOVED_TOLERANCE
+from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry import raycast
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from surface_deformation import SurfaceDeformation
 
-from nerfedit_plugin.bending.surface_deformation import SurfaceDeformation
 from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.data.synthetic import colorize
 from nerfedit_plugin.errors import NerfEditError

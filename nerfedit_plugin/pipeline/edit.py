@@ -1,6 +1,6 @@
-"""The edit job: rest mesh + deformer + edit spec → deformed meshes, lifted proxy, ``deformation.npz``, report.
+"""``nerfedit edit``: rest mesh + deformer + edit spec → deformed meshes, lifted proxy, ``deformation.npz``, report.
 
-Output folder (written atomically: staged beside the target, renamed on success):
+The edit folder (:class:`EditFolder`; written atomically: staged beside the target, renamed on success):
 ``config.yml``, a copy of the spec, ``deformed_mesh.ply`` (or ``deformed_mesh_0000.ply`` … for sequences),
 ``deformation.npz`` (the lifted proxy: refined where the lift needed it), ``proxy.npz`` (the proxy as built, for
 ``--proxy-from``, when the lift refined it), ``report.json`` and whatever the deformer's optional
@@ -30,6 +30,8 @@ from nerfedit_plugin.edit.spec import copy_spec_file, load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
+from nerfedit_plugin.pipeline.extract import write_in_capture_frame
+from nerfedit_plugin.pipeline.run import Run
 from nerfedit_plugin.quality import edit_warnings
 from nerfedit_plugin.timing import ProgressListener, Stopwatch, peak_rss_mb
 
@@ -64,13 +66,60 @@ def reuse_proxy(
     if recorded != proxy_cache_key(mesh, config, camera_distance):
         raise NerfEditError(
             f"--proxy-from {source}: its proxy was built from another mesh or other proxy settings "
-            "(mesh, --proxy.*, camera distance must be those of that edit)"
+            "(mesh, --proxy.*, camera distance must be those of that edit; the config.yml of an edit names the "
+            "edit's own proxy: pass --proxy-from None to build a new one)"
         )
     if (path.parent / "proxy.npz").is_file():
         built = TetProxy.load(path.parent / "proxy.npz")
         return proxy_from_tets(built.vertices, built.tets, mesh, f"--proxy-from {path.parent / 'proxy.npz'}")
     field = DeformationField.load(path)
     return proxy_from_tets(field.rest_vertices, field.tets, mesh, f"--proxy-from {path}")
+
+
+DEFORMATION, REPORT, CONFIG = "deformation.npz", "report.json", "config.yml"
+
+
+@dataclasses.dataclass(frozen=True)
+class EditFolder:
+    """An edit folder (see the module docstring) and what its ``config.yml`` records of the command that made it."""
+
+    path: Path
+    record: dict
+
+    @classmethod
+    def open(cls, path: str | os.PathLike) -> EditFolder:
+        """The edit folder at ``path``; a folder that is no edit folder (no ``config.yml`` or no
+        ``deformation.npz``; a run folder) is a :class:`NerfEditError` naming it."""
+        from nerfedit_plugin.config import read_config
+
+        path = Path(path)
+        if not (path / CONFIG).is_file():
+            raise NerfEditError(f"{path}: not an edit folder (no {CONFIG}; make one with `nerfedit edit`)")
+        if not (path / DEFORMATION).is_file():
+            run_folder = (path / "field.pt").is_file()
+            what = "a run folder: edit its field with --run" if run_folder else "make one with `nerfedit edit`"
+            raise NerfEditError(f"{path}: not an edit folder (no {DEFORMATION}; {what})")
+        return cls(path, read_config(path / CONFIG, "the config.yml of `nerfedit edit`"))
+
+    @property
+    def deformation(self) -> Path:
+        return self.path / DEFORMATION
+
+    @property
+    def mesh(self) -> str | None:
+        """The ``--mesh`` the edit was made from (None: made from a run, or not recorded)."""
+        mesh = self.record.get("mesh")
+        return mesh if isinstance(mesh, str) else None
+
+    @property
+    def run(self) -> Path | None:
+        """The ``--run`` folder the edit was made on (None: made from a mesh, or not recorded)."""
+        run = self.record.get("run")
+        return Path(run) if isinstance(run, str) else None
+
+    def deformed_meshes(self) -> list[Path]:
+        """``deformed_mesh.ply``, or ``deformed_mesh_0000.ply`` … of a sequence, in frame order."""
+        return sorted(self.path.glob("deformed_mesh*.ply"))
 
 
 @dataclasses.dataclass
@@ -91,12 +140,12 @@ class Base:
         """``folder`` (an edit folder, or its ``deformation.npz``) at ``frame`` (default its last); a missing path,
         a folder without ``deformation.npz`` or a frame out of range is a :class:`NerfEditError`."""
         folder = Path(folder)
-        if folder.is_file() and folder.name == "deformation.npz":
+        if folder.is_file() and folder.name == DEFORMATION:
             folder = folder.parent
         if not folder.exists():
             raise NerfEditError(f"--base {folder}: no such edit folder")
-        if not (folder / "deformation.npz").is_file():
-            raise NerfEditError(f"--base {folder}: not an edit folder (no deformation.npz)")
+        if not (folder / DEFORMATION).is_file():
+            raise NerfEditError(f"--base {folder}: not an edit folder (no {DEFORMATION})")
         n = len(sorted(folder.glob("deformed_mesh*.ply")))
         frame = n - 1 if frame is None else frame
         if not 0 <= frame < n:
@@ -108,26 +157,22 @@ class Base:
         a chained deformation bends only the field of the run it was made on. What the base's ``config.yml`` records
         decides, following its own ``--base`` back: another run that still exists, or a mesh, is an error; a run no
         longer there (the folders moved) or no record (the demo's, the Python API's) is taken on trust."""
-        from nerfedit_plugin.config import read_config
-
         folder, seen = self.folder, set()
         while folder is not None and folder.resolve() not in seen:
             seen.add(folder.resolve())
-            record = read_config(folder / "config.yml", "the config.yml of `nerfedit edit`")
-            recorded, mesh = record.get("run"), record.get("mesh")
-            if isinstance(recorded, str):
-                if Path(recorded).is_dir() and Path(recorded).resolve() != Path(run).resolve():
-                    raise NerfEditError(f"--base {self.folder}: an edit of the run {recorded}, not of --run {run}")
+            edit = EditFolder.open(folder)
+            if edit.run is not None:
+                if edit.run.is_dir() and edit.run.resolve() != Path(run).resolve():
+                    raise NerfEditError(f"--base {self.folder}: an edit of the run {edit.run}, not of --run {run}")
                 return
-            if isinstance(mesh, str):
-                raise NerfEditError(f"--base {self.folder}: an edit of the mesh {mesh}, not of --run {run}")
-            base = record.get("base")
+            if edit.mesh is not None:
+                raise NerfEditError(f"--base {self.folder}: an edit of the mesh {edit.mesh}, not of --run {run}")
+            base = edit.record.get("base")
             folder = Path(base) if isinstance(base, str) else None
 
     def mesh(self) -> SurfaceMesh:
         """The base edit's deformed mesh of :attr:`frame`: the rest of the new edit."""
-        meshes = sorted(self.folder.glob("deformed_mesh*.ply"))
-        return SurfaceMesh.load(meshes[self.frame])
+        return SurfaceMesh.load(sorted(self.folder.glob("deformed_mesh*.ply"))[self.frame])
 
     def chain(self, path: Path) -> None:
         """Rewrite the new edit's ``deformation.npz`` at ``path`` as the base's deformation followed by it."""
@@ -157,9 +202,10 @@ def run_edit(
     """Run one edit end to end; ``record`` is the full config written to ``config.yml``. ``lift_config`` and
     ``proxy_config`` default to ``LiftConfig()`` and ``ProxyConfig()``. ``proxy_from`` (an earlier edit's folder or
     ``deformation.npz``) reuses its proxy instead of building one (:func:`reuse_proxy`). ``source_to_world`` (4,4):
-    where a spec with ``frame: source`` is mapped from (a run's :meth:`~nerfedit_plugin.io.run.Run.source_transform`;
-    None: the identity, the mesh is its own source). ``base``: the edit whose deformed mesh ``mesh`` is; the saved
-    deformation chains onto it. A spec with ``objects`` runs :func:`~nerfedit_plugin.edit.objects.run_objects_edit`.
+    where a spec with ``frame: source`` is mapped from (a run's
+    :meth:`~nerfedit_plugin.pipeline.run.Run.source_transform`; None: the identity, the mesh is its own source).
+    ``base``: the edit whose deformed mesh ``mesh`` is; the saved deformation chains onto it. A spec with ``objects``
+    runs :func:`~nerfedit_plugin.edit.objects.run_objects_edit`.
 
     ``on_stage(name)`` is called as each stage starts (load, bind, deform, proxy, lift, write) and
     ``on_progress(stage, done, total, detail)`` with the stage's :class:`~nerfedit_plugin.timing.Progress` reports
@@ -253,3 +299,13 @@ def run_edit(
     for message in report["warnings"]:
         warnings.warn(message, stacklevel=2)
     return EditResult(Path(out), report)
+
+
+def export_to_capture(run: Run, folder: Path) -> list[Path]:
+    """Each ``deformed_mesh*.ply`` of an edit ``folder`` mapped by the inverse of the run's source transform (the
+    capture's frame) into ``folder/capture/`` under the same name, each written atomically."""
+    (folder / "capture").mkdir(exist_ok=True)
+    return [
+        write_in_capture_frame(run, SurfaceMesh.load(path), folder / "capture" / path.name)
+        for path in sorted(folder.glob("deformed_mesh*.ply"))
+    ]

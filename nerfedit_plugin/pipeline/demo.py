@@ -27,10 +27,11 @@ from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.config import write_config
 from nerfedit_plugin.data.datasets import load_dataset
 from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset, render_ground_truth
-from nerfedit_plugin.edit.job import run_edit
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import atomic_dir
-from nerfedit_plugin.io.run import extract_mesh, train_run
+from nerfedit_plugin.pipeline.edit import run_edit
+from nerfedit_plugin.pipeline.extract import extract_mesh
+from nerfedit_plugin.pipeline.train import train_run
 from nerfedit_plugin.registry import DEFORMERS, FIELDS, discover
 from nerfedit_plugin.render.views import default_render_config, render_views, turntable_cameras, write_gif, write_images
 from nerfedit_plugin.timing import ProgressListener, Stopwatch, labelled
@@ -108,7 +109,7 @@ def run_demo(
     """Run the demo into ``out`` (see the module docstring); returns ``{"out", "seconds" (per stage), "before" and
     "after" (mean PSNR/SSIM/LPIPS, see the module docstring), "edit" (the edit report), "files"}``, also written to
     ``out/summary.json``; ``record`` (the command line's args) goes to ``out/config.yml``. ``on_stage`` and
-    ``on_progress``: as :func:`~nerfedit_plugin.edit.job.run_edit`'s, for the demo's stages (the edit's own stages
+    ``on_progress``: as :func:`~nerfedit_plugin.pipeline.edit.run_edit`'s, for the demo's stages (the edit's own stages
     and progress are the ``edit`` stage's progress)."""
     sizes = PRESETS[preset]
     registry = discover()

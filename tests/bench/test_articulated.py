@@ -4,10 +4,10 @@ import json
 
 import numpy as np
 import pytest
+from articulated import JOINTS, POSE, build_subject, pose_axis, subject_sdf
 from scipy.spatial.transform import Rotation
 
 from deformers.skeleton import SkeletonConfig
-from nerfedit_plugin.data.articulated import JOINTS, POSE, build_subject, pose_axis, subject_sdf
 from nerfedit_plugin.data.synthetic import normalize
 from nerfedit_plugin.edit.spec import load_edit_spec
 

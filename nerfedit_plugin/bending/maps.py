@@ -1,0 +1,57 @@
+"""The contract between a deformation and what it moves: the backward map a ray-marched field is rendered through.
+
+A ray-marched field (``Field.rendering == "rays"``) is rendered by bending each sample of a camera ray from deformed
+space back into canonical (rest) space, where the unchanged field is queried: :class:`BackwardMap` is what the
+renderer (:mod:`nerfedit_plugin.render.renderer`) needs of any deformation for that. ``DeformationField`` (one tet
+proxy and its frames) and ``SceneDeformation`` (several objects, copies and chained edits) declare it; a third
+party's deformation passes if it has the members (a structural :class:`typing.Protocol`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+import torch
+
+
+class BentPoints(NamedTuple):
+    points: torch.Tensor  # (M,3) x_c (x itself where not inside T')
+    tet: torch.Tensor | None  # (M,) int64: the deformed tet containing x, -1 outside T' (None if not asked for)
+    empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
+
+
+class CanonicalPoints(NamedTuple):
+    points: torch.Tensor  # (M,3) x_c
+    inside: torch.Tensor  # (M,) bool: located in the deformed proxy T' (mapped)
+    empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
+    jacobian: torch.Tensor  # (M,3,3) dx_c/dx, constant per tet; identity where not inside
+
+
+@runtime_checkable
+class BackwardMap(Protocol):
+    """Deformed space → canonical space, per frame ``0 ≤ frame < n_frames``.
+
+    A point ``x`` is *mapped* (it lies in a moved part: ``x_c`` is where its content rests), *empty* (the space a part
+    left: nothing renders there) or the identity (``x_c = x``: background and untouched content). The renderer clips
+    rays to the field's box grown by :meth:`moved_bounds` and rotates view directions by the Jacobian ``J = ∂x_c/∂x``
+    (``d_c = normalize(J d)``)."""
+
+    @property
+    def n_frames(self) -> int:
+        """Frames of the deformation (an animation's; 1 for a still edit)."""
+
+    def bend(
+        self, x: torch.Tensor, frame: int = 0, *, out: torch.Tensor | None = None, tets: bool = True
+    ) -> BentPoints:
+        """Map ``x (M,3)`` of ``frame`` to canonical space → :class:`BentPoints`; ``tet`` indexes the pieces
+        :meth:`jacobian` takes (None with ``tets=False``); ``out`` (may be ``x``) receives the points."""
+
+    def jacobian(self, tet: torch.Tensor, frame: int = 0) -> torch.Tensor:
+        """``tet (M,)`` of :meth:`bend` → ``(M,3,3)`` ∂x_c/∂x (the identity where ``tet`` is -1)."""
+
+    def moved_bounds(self, frame: int = 0) -> np.ndarray | None:
+        """``(2,3)`` bounding box of where content moved to in ``frame``; None when nothing moved."""
+
+    def to_canonical(self, x: torch.Tensor, frame: int = 0) -> CanonicalPoints:
+        """:meth:`bend` and :meth:`jacobian` at once → :class:`CanonicalPoints`."""
