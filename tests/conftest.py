@@ -1,5 +1,8 @@
-"""Shared fixtures: small real meshes and their (cached) tet proxies."""
+"""Shared fixtures: small real meshes and their (cached) tet proxies, the example third-party plugin installed."""
 
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +12,7 @@ import trimesh
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 FIXTURES = Path(__file__).parent / "fixtures"
+TWIST = Path(__file__).resolve().parents[1] / "docs" / "examples" / "twist"
 
 
 @pytest.fixture(scope="session")
@@ -16,6 +20,33 @@ def capsule() -> SurfaceMesh:
     """A capsule along z (height 2, radius 0.35), ~600 vertices: bends nicely under handle edits."""
     mesh = trimesh.creation.capsule(height=1.3, radius=0.35, count=[24, 12])
     return SurfaceMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+
+
+@pytest.fixture(scope="session")
+def twist_site(tmp_path_factory) -> Path:
+    """``pip install --target`` of docs/examples/twist, offline, as a folder to put on the path (its entry point
+    registers ``twist``); built from a copy (setuptools builds in-tree)."""
+    root = tmp_path_factory.mktemp("third_party")
+    source, site = root / "source", root / "site"
+    shutil.copytree(TWIST, source, ignore=shutil.ignore_patterns("tests", "build", "*.egg-info", "__pycache__"))
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--no-deps",
+            "--no-build-isolation",
+            "--no-index",
+            "--quiet",
+            "--target",
+            str(site),
+            str(source),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    return site
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,5 @@
 """A third-party deformer installed as its own distribution is discovered; broken entry points are skipped."""
 
-import shutil
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -11,34 +9,6 @@ import pytest
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.testing import check_deformer
-
-TWIST = Path(__file__).resolve().parents[1] / "docs" / "examples" / "twist"
-
-
-@pytest.fixture(scope="module")
-def twist_site(tmp_path_factory) -> Path:
-    """``pip install --target`` of docs/examples/twist, offline; built from a copy (setuptools builds in-tree)."""
-    root = tmp_path_factory.mktemp("third_party")
-    source, site = root / "source", root / "site"
-    shutil.copytree(TWIST, source, ignore=shutil.ignore_patterns("tests", "build", "*.egg-info", "__pycache__"))
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-index",
-            "--quiet",
-            "--target",
-            str(site),
-            str(source),
-        ],
-        check=True,
-        capture_output=True,
-    )
-    return site
 
 
 @pytest.fixture

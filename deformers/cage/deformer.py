@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 import tyro
 
+from deformers.cage.editing import CageBackend
 from deformers.cage.green import green_coordinates, green_face_terms
 from deformers.cage.mean_value import mean_value_coordinates
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig, Overlay
@@ -154,6 +155,7 @@ class CageDeformer(Deformer):
     """Binds mesh vertices to a cage; ``rest_cage`` and ``deformed_cages (frames, C, 3)`` are set by :meth:`bind`."""
 
     spec_keys = frozenset({"cage", "deformed_cage", "handles"})
+    editor = CageBackend
 
     def __init__(self, config: CageConfig) -> None:
         super().__init__(config)

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from deformers.skeleton.bvh import BvhClip, parse_bvh, placed_bvh
+from deformers.skeleton.editing import SkeletonBackend
 from deformers.skeleton.heat_weights import bone_heat_weights
 from deformers.skeleton.skinning import Binding, normalize_weights, skin
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
@@ -234,6 +235,7 @@ class SkeletonDeformer(Deformer):
     """Skeleton skinning; defined in space, so it also maps arbitrary points (``deform_points``)."""
 
     spec_keys = frozenset({"skeleton", "pose", "weights"})
+    editor = SkeletonBackend
     config: SkeletonConfig
 
     def bind(self, rest: SurfaceMesh, edit: EditSpec) -> None:

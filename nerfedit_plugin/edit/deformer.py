@@ -12,7 +12,7 @@ import abc
 import dataclasses
 import hashlib
 from pathlib import Path
-from typing import ClassVar, Literal
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.timing import Progress, no_progress
+
+if TYPE_CHECKING:
+    from nerfedit_plugin.edit.editing import EditingBackend
 
 
 @dataclasses.dataclass
@@ -49,6 +52,11 @@ class Deformer(abc.ABC):
     """
 
     spec_keys: ClassVar[frozenset[str]] = frozenset({"handles"})
+
+    editor: ClassVar[type[EditingBackend] | None] = None
+    """The interactive editor's backend for this deformer (``nerfedit view --mesh MESH --deformer NAME``): a subclass
+    of :class:`~nerfedit_plugin.edit.editing.EditingBackend` (what the handles grab, how they become this deformer's
+    edit spec, how a pose is previewed, what the viewer draws). Default None: not editable in the viewer."""
 
     on_progress: Progress = staticmethod(no_progress)
     """``self.on_progress(done, total=None, detail="")`` (:class:`~nerfedit_plugin.timing.Progress`): how far a long

@@ -1,12 +1,13 @@
 """The interactive editor window (``nerfedit view --mesh MESH`` / ``--run RUN``): Open3D ``gui`` with a
 ``SceneWidget``, a side panel and a status line, driving an :class:`~nerfedit_plugin.viewer.editor_state.EditorState`.
 
-What is picked depends on the deformer (``--deformer``): mesh vertices (arap), the cage's vertices (cage, drawn as
-the cage layer) or skeleton joints (skeleton, the skeleton layer). Mouse (in the 3-D view): drag orbits;
-**Ctrl+click** picks the vertex under the cursor, **Ctrl+drag** selects the visible vertices in a box, **Alt+drag**
-brushes them; **Shift+drag** moves the active moving handle in the view plane (each move re-poses the mesh: ARAP
-warm-started a few iterations, cage and skeleton exactly); when the drag ends the ARAP solve is finished in a
-worker thread (settle on release; the status line reports the energy gap closed). Keys: **F** / **M** mark the
+What is picked depends on the deformer (``--deformer``): the control points of its editing backend
+(:attr:`Deformer.editor <nerfedit_plugin.edit.deformer.Deformer.editor>`: mesh vertices, or points of its own, drawn
+with its overlay layer). Mouse (in the 3-D view): drag orbits; **Ctrl+click** picks the vertex under the cursor,
+**Ctrl+drag** selects the visible vertices in a box, **Alt+drag** brushes them; **Shift+drag** moves the active
+moving handle in the view plane (each move re-poses the mesh through the backend's preview); when the drag ends an
+iterative preview's solve is finished in a worker thread (settle on release; the status line reports the energy gap
+closed). Keys: **F** / **M** mark the
 selection fixed / moving, **G** grows it by the panel's geodesic radius, **Esc** clears it, arrows nudge the active
 handle in the view plane and **PgUp/PgDn** along the view direction, **Q/E** turn it ±5° about the view axis,
 **+/−** scale it ×1.05, **Z / Y** undo / redo, **Enter** settles (the exact solve ``nerfedit edit`` runs), **R**
@@ -250,7 +251,7 @@ class Editor:
         )
 
     def picker(self) -> Picker:
-        """Picks the control points as shown (the deformed mesh's vertices, the posed cage or joints)."""
+        """Picks the control points as shown (the backend's posed points)."""
         return Picker(self.state.posed_points, self.state.backend.faces)
 
     def click(self, x: float, y: float) -> str:
@@ -374,7 +375,7 @@ class Editor:
         self.window.post_redraw()
 
     def _draw_controls(self) -> None:
-        """(Re)draw the handles and the deformer's overlay (cage, skeleton) at the posed control points."""
+        """(Re)draw the handles at the posed control points and the backend's overlay lines."""
         scene, state = self.scene.scene, self.state
         for name in ("handles", "controls"):
             if scene.has_geometry(name):

@@ -1,10 +1,10 @@
 """The editor's model, without a window: the selection, the handles, undo/redo, the edit spec and the solves.
 
-:class:`EditorState` holds an :class:`~nerfedit_plugin.viewer.backends.EditingBackend` (what handles grab for the
-chosen deformer: mesh vertices, cage vertices or skeleton joints), the current selection (control point indices),
-the handles made from selections (:class:`~nerfedit_plugin.viewer.handles.EditorHandle`) and an undo/redo history of
-snapshots. Everything the solvers see goes through :meth:`EditorState.spec`, parsed as ``nerfedit edit`` parses the
-saved file, so the editor shows what the command will compute:
+:class:`EditorState` holds an :class:`~nerfedit_plugin.edit.editing.EditingBackend` (the chosen deformer's own:
+what its handles grab, its control points), the current selection (control point indices), the handles made from
+selections (:class:`~nerfedit_plugin.edit.editing.EditorHandle`) and an undo/redo history of snapshots. Everything
+the solvers see goes through :meth:`EditorState.spec`, parsed as ``nerfedit edit`` parses the saved file, so the
+editor shows what the command will compute:
 
 - :meth:`EditorState.preview` poses the mesh after a move through the backend (prefactored or bound once);
 - :meth:`EditorState.converge` finishes an iterative preview (settle on release) and reports the energy gap closed;
@@ -30,14 +30,14 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.edit.deformer import checked_frames, mesh_digest
+from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle
 from nerfedit_plugin.edit.selection_file import write_selection
 from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import write_text
 from nerfedit_plugin.registry import DEFORMERS, discover
-from nerfedit_plugin.viewer.backends import EditingBackend, backend_class, editing_backend
-from nerfedit_plugin.viewer.handles import EditorHandle
+from nerfedit_plugin.viewer.backends import backend_class, editing_backend
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,16 +77,16 @@ class EditorState:
         source_to_world: np.ndarray | None = None,
     ) -> EditorState:
         """The state of the edit spec at ``path`` for deformer ``name`` on ``mesh``, to keep editing: its handles
-        (selection files included), frames and the deformer's own keys (``keys``, e.g. a ``--skeleton``, override
-        them), shown settled; a ``frame: source`` spec needs the run's ``source_to_world``."""
-        file_keys = backend_class(name).file_keys  # refuses a deformer the editor has no backend for
+        (selection files included), frames and the deformer's own keys (``keys``, files given on the command line,
+        override them), shown settled; a ``frame: source`` spec needs the run's ``source_to_world``."""
         config = discover(DEFORMERS).config_class(DEFORMERS, name)()
+        backend = backend_class(name, config)  # refuses a deformer that offers no editor backend
         spec = load_edit_spec(path, config._target.spec_keys)
         if spec.frame == "source":
             if source_to_world is None:
                 raise NerfEditError(f"{path}: frame: source needs the run it was made for (--run RUN)")
             spec = spec.in_world(source_to_world)
-        own = {key: "auto" if spec.extra[key] == "auto" else spec.path(key) for key in file_keys if key in spec.extra}
+        own = backend.keys_of(spec)
         state = cls(editing_backend(name, mesh, {**own, **(keys or {})}, config), frames=spec.frames)
         handles = state.backend.handles_of(spec)
         moving = [i for i, h in enumerate(handles) if not h.fixed]
@@ -181,8 +181,7 @@ class EditorState:
     # ---- handles -------------------------------------------------------------------------------
     def mark(self, fixed: bool) -> str:
         """Make the selection a fixed or a moving handle (the moving one becomes the active handle) and clear the
-        selection; the backend refuses what its deformer cannot take (ARAP: the whole mesh; skeleton: not one
-        joint)."""
+        selection; the backend refuses what its deformer cannot take (``EditingBackend.check_handle``)."""
         chosen = self.selection
         if not len(chosen):
             raise NerfEditError(f"mark: select {self.backend.what} first (click, box or brush)")
@@ -334,7 +333,7 @@ class EditorState:
 
     @property
     def posed_points(self) -> np.ndarray:
-        """The control points (P,3) as shown: the deformed mesh's vertices (ARAP), else the posed cage or joints."""
+        """The control points (P,3) as shown (:meth:`~nerfedit_plugin.edit.editing.EditingBackend.posed_points`)."""
         return self.backend.posed_points(self.deformed)
 
     def settle(self) -> np.ndarray:

@@ -1,7 +1,7 @@
-"""Open3D viewer of an edit: rest and deformed mesh, tet proxy, cage and handles — in a window or headless.
+"""Open3D viewer of an edit: rest and deformed mesh, tet proxy, handles, the deformer's overlays — windowed or headless.
 
 An edit folder (``nerfedit edit --out EDIT_DIR``) supplies the deformed mesh, ``deformation.npz`` (rest and
-deformed proxy) and the spec's handles; its deformer adds what it wrote (``Deformer.overlays``, e.g. cages).
+deformed proxy) and the spec's handles; its deformer adds what it wrote (``Deformer.overlays``).
 Deformed geometry is shifted along +x by ``1.2 ×`` the rest bounding box width so rest and edit sit side by side.
 Windows need a display (``draw_geometries``); :func:`screenshot` renders offscreen with the legacy
 ``Visualizer(visible=False)`` (EGL when no display is present) and writes a PNG.
@@ -89,7 +89,7 @@ def edit_geometries(
     mesh: SurfaceMesh, edit_dir: str | os.PathLike | None = None, frame: int = 0, layers: Iterable[str] | None = None
 ) -> list:
     """The Open3D geometries of ``layers`` for a rest ``mesh`` and an optional edit folder. Built-in layers are
-    :data:`LAYERS`; the edit's deformer adds its own (:meth:`Deformer.overlays`, e.g. ``cage``). ``None``:
+    :data:`LAYERS`; the edit's deformer adds its own (:meth:`Deformer.overlays`). ``None``:
     :data:`DEFAULT_LAYERS` and every overlay. Layers the folder does not hold are left out."""
     given = layers is not None
     layers = set(layers) if given else set(DEFAULT_LAYERS)
@@ -103,7 +103,8 @@ def edit_geometries(
     if not config_file.is_file():
         raise NerfEditError(f"{edit_dir}: not an edit folder (no config.yml; make one with `nerfedit edit`)")
     record = yaml.safe_load(config_file.read_text()) or {}
-    deformer = discover(DEFORMERS).config_class(DEFORMERS, str(record.get("deformer", "arap")))()._target
+    name = record.get("deformer")  # without one: the contract's defaults (no overlays, handles on the rest vertices)
+    deformer = Deformer if name is None else discover(DEFORMERS).config_class(DEFORMERS, str(name))()._target
     meshes = sorted(edit_dir.glob("deformed_mesh*.ply"))
     if not 0 <= frame < len(meshes):
         raise NerfEditError(f"frame: {frame} out of range for the {len(meshes)} deformed mesh(es) in {edit_dir}")

@@ -14,7 +14,7 @@ import numpy as np
 from nerfedit_plugin.geometry.raycast import cast_rays, raycasting_scene
 
 CLICK_RADIUS = 12.0
-"""A click on points without a surface (skeleton joints) picks the nearest one within this many pixels."""
+"""A click on points without a surface (a backend's joints or markers) picks the nearest one within this many pixels."""
 VISIBLE_SLACK = 1e-3
 """A vertex is visible when the first surface hit on the ray towards it lies at least at its distance × (1 −
 this) (float32 ray casting, vertices on the hit triangle)."""
@@ -71,7 +71,7 @@ class View(NamedTuple):
 
 class Picker:
     """Picks vertices of a mesh as drawn (``vertices (V,3)``, ``faces (F,3)``) through a :class:`View`; without
-    ``faces``, points (skeleton joints) that nothing hides."""
+    ``faces``, points that nothing hides (a backend's joints or markers)."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray | None) -> None:
         self.vertices = np.asarray(vertices, dtype=np.float64)

@@ -254,6 +254,15 @@ def test_bad_input_is_a_message_and_changes_nothing(bone, tmp_path):
     assert (tmp_path / "edit.json").read_text() == "keep" and not list(read_only.iterdir())
 
 
+def test_a_deformer_without_an_editor_backend_is_refused_by_name(bone, tmp_path):
+    """``mesh`` declares no backend (``Deformer.editor`` None): one error naming it, for a new edit and a saved spec."""
+    with pytest.raises(NerfEditError, match="deformer 'mesh' offers no editor backend"):
+        editing_backend("mesh", bone)
+    (tmp_path / "edit.json").write_text(json.dumps({"deformed": "edited.ply"}))
+    with pytest.raises(NerfEditError, match="deformer 'mesh' offers no editor backend"):
+        EditorState.open("mesh", bone, tmp_path / "edit.json")
+
+
 def test_picking_through_a_camera(bone):
     """A vertex projected to a pixel is picked back (when in front), a box picks the visible vertices in it, a drag
     of the view plane keeps its anchor under the cursor, and empty space picks nothing."""
