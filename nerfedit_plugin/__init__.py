@@ -43,7 +43,9 @@ _API = {
     "Lift": "edit.lift",
     "LiftConfig": "edit.lift",
     "run_edit": "pipeline.edit",
+    "EditFolder": "pipeline.edit",
     # bending and rendering
+    "BackwardMap": "bending.maps",
     "DeformationField": "bending.deformation_field",
     "SceneDeformation": "bending.scene_deformation",
     "load_deformation": "bending.scene_deformation",
@@ -82,6 +84,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.bending.deformation_field import DeformationField
+    from nerfedit_plugin.bending.maps import BackwardMap
     from nerfedit_plugin.bending.scene_deformation import SceneDeformation, load_deformation
     from nerfedit_plugin.config import InstantiateConfig
     from nerfedit_plugin.data.cameras import Cameras
@@ -96,7 +99,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.fields.base import Field, FieldConfig
     from nerfedit_plugin.fields.checkpoint import load_field, save_field
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
-    from nerfedit_plugin.pipeline.edit import run_edit
+    from nerfedit_plugin.pipeline.edit import EditFolder, run_edit
     from nerfedit_plugin.pipeline.extract import extract_mesh
     from nerfedit_plugin.pipeline.run import Run, open_run
     from nerfedit_plugin.pipeline.train import train_run

@@ -163,11 +163,11 @@ def main(argv: list[str] | None = None) -> int:
 
         print_error(f"unknown command {argv[0]!r} ({USAGE}; `nerfedit --help` says what each does)")
         return 2
-    with interrupts_raise() as received:
-        from nerfedit_plugin.io import atomic
+    from nerfedit_plugin.io import atomic  # before the handlers (the console script's own cover its imports)
 
-        since, args = len(atomic.committed), None
-        try:
+    since, args = len(atomic.committed), None
+    try:
+        with interrupts_raise() as received:
             from nerfedit_plugin.cli.common import parse, print_error, print_warning
             from nerfedit_plugin.errors import NerfEditError
 
@@ -192,17 +192,17 @@ def main(argv: list[str] | None = None) -> int:
                     raise
                 print_error(exc)
                 return 2
-        except KeyboardInterrupt as exc:
-            if getattr(args, "verbose", False):
-                import traceback
+    except KeyboardInterrupt as exc:
+        if getattr(args, "verbose", False):
+            import traceback
 
-                traceback.print_exc()
-            return _interrupted(argv[0], exc, since)
-        except Exception as exc:  # an interrupt that library code (an import, a kernel) wrapped in its own error
-            interrupt = _interrupt_in_chain(exc)
-            if interrupt is None or getattr(args, "verbose", False):
-                raise
-            return _interrupted(argv[0], interrupt, since)
+            traceback.print_exc()
+        return _interrupted(argv[0], exc, since)
+    except Exception as exc:  # an interrupt that library code (an import, a kernel) wrapped in its own error
+        interrupt = _interrupt_in_chain(exc)
+        if interrupt is None or getattr(args, "verbose", False):
+            raise
+        return _interrupted(argv[0], interrupt, since)
     if from_console:  # done and committed: a signal during the interpreter's shutdown must not fail the command
         for signum in SIGNALS:
             if signal.getsignal(signum) not in (signal.SIG_IGN, None):

@@ -133,7 +133,7 @@ def test_run_errors_are_one_line(scene, mesh_run, tmp_path, capsys):
     assert "not a readable field checkpoint" in capsys.readouterr().err
     assert not (broken / "mesh.ply").exists()
     assert main(["train", "--field", "mesh", "--data", str(scene / "data"), "--out", str(tmp_path / "r")]) == 2
-    assert "built from a mesh file" in capsys.readouterr().err
+    assert "made from a model file" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
     assert main(["eval", "--pred", str(tmp_path), "--gt", str(scene / "data" / "test")]) == 2
     assert "missing" in capsys.readouterr().err

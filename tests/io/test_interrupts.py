@@ -140,3 +140,30 @@ def test_interrupted_staged_write_removes_its_staging_folder(tmp_path, signum):
     line = assert_interrupted(proc, signum, [], tmp_path)
     assert line.endswith("nothing written") and not stage.exists()
     assert {p.name: p.read_bytes() for p in (tmp_path / "scene").iterdir()} == good
+
+
+EARLY = """
+import importlib.abc, os, signal, sys
+class Interrupt(importlib.abc.MetaPathFinder):  # the signal arrives while the command line loads
+    def find_spec(self, name, path=None, target=None):
+        if name == {module!r}:
+            os.kill(os.getpid(), signal.{signal})
+        return None
+sys.meta_path.insert(0, Interrupt())
+sys.argv = ["nerfedit", "plugins"]
+from nerfedit_plugin.cli import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize(
+    "module, signame", [("nerfedit_plugin.cli.app", "SIGINT"), ("nerfedit_plugin.io.atomic", "SIGTERM")]
+)
+def test_a_signal_while_the_command_line_loads_is_one_line(module, signame):
+    """The console script's handlers come first: a signal before the command's own (the command line's imports,
+    about 30 ms) ends it like a later interrupt, not with Python's traceback."""
+    done = subprocess.run(
+        [sys.executable, "-c", EARLY.format(module=module, signal=signame)], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 128 + getattr(signal, signame), done.stderr
+    assert done.stderr == f"nerfedit: interrupted ({signame}) while starting; nothing was written\n"
