@@ -57,7 +57,6 @@ class EditArgs:
 
 
 def edit(args: EditArgs) -> None:
-    from nerfedit_plugin.edit.objects import is_objects_spec
     from nerfedit_plugin.pipeline.edit import Base, export_to_capture, run_edit
     from nerfedit_plugin.pipeline.render import render_run
     from nerfedit_plugin.pipeline.run import open_run
@@ -80,9 +79,7 @@ def edit(args: EditArgs) -> None:
         raise NerfEditError("give the mesh to edit: --mesh MESH.ply or --run RUN_DIR (its extracted mesh)")
     mesh = base.mesh() if base is not None else args.mesh if args.mesh is not None else run.mesh()
     distance = args.camera_distance if args.camera_distance is not None or run is None else run.camera_distance()
-    record = recorded(args)
-    if not is_objects_spec(args.edit):  # config.yml names the edit's own proxy: a re-run from it is the same edit
-        record = dataclasses.replace(record, proxy_from=args.out.absolute())
+    record = dataclasses.replace(recorded(args), proxy_from=args.out.absolute())  # a re-run is the same edit
     with StageProgress(console) as progress:
         result = run_edit(
             mesh,

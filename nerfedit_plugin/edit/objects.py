@@ -42,7 +42,7 @@ from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.edit.deformer import DeformerConfig, checked_frames, mesh_digest
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.ownership import own_region
-from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy
+from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, stored_proxy
 from nerfedit_plugin.edit.selection import Selection, parse_selection
 from nerfedit_plugin.edit.spec import (
     FRAMES,
@@ -370,6 +370,7 @@ def run_objects_edit(
     camera_distance: float | None = None,
     source_to_world: np.ndarray | None = None,
     cache_dir: Path,
+    proxy_from: str | os.PathLike | None = None,
     base=None,
     overwrite: bool = False,
     record: dict | None = None,
@@ -378,7 +379,9 @@ def run_objects_edit(
 ) -> tuple[Path, dict]:
     """Run a scene edit (module docstring) end to end → ``(out, report)``. Writes ``deformation.npz`` (format 2),
     ``deformed_mesh.ply`` (the whole edited scene; sequences ``deformed_mesh_0000.ply`` …), the spec, ``config.yml``,
-    ``report.json`` and each deformer's artifacts under ``objects/<instance>/``. ``base``: as
+    ``report.json``, each object's proxy as built (``objects/<object>/proxy.npz``) and each deformer's artifacts under
+    ``objects/<instance>/``. ``proxy_from`` (an earlier scene edit's folder) reuses its objects' proxies, each
+    checked against its recorded key (:func:`~nerfedit_plugin.edit.proxy.stored_proxy`). ``base``: as
     :func:`~nerfedit_plugin.pipeline.edit.run_edit`'s (a :class:`~nerfedit_plugin.pipeline.edit.Base`); so are
     ``on_stage`` and ``on_progress`` (stages ``proxy NAME``, ``edit NAME``, ``own NAME`` per object)."""
     lift_config = LiftConfig() if lift_config is None else lift_config
@@ -388,6 +391,7 @@ def run_objects_edit(
         rest = mesh if isinstance(mesh, SurfaceMesh) else SurfaceMesh.load(mesh)
         spec = load_objects_spec(edit, default_deformer, source_to_world)
         selected = spec.resolve(rest)
+        stored = _stored_keys(Path(proxy_from)) if proxy_from is not None else None
     objects, instances, placed, reports, patches, surfaces = [], [], [], [], [], []
     with atomic_dir(out, overwrite=overwrite) as stage:
         for obj, idx in zip(spec.objects, selected):
@@ -396,7 +400,18 @@ def run_objects_edit(
             surface, others = rest.submesh(mask)[0], rest.submesh(~mask)[0]
             surfaces.append(surface)
             with clock.stage(f"proxy {obj.name}"):
-                proxy, cached = cached_proxy(surface, proxy_config, cache_dir, camera_distance, clock.progress)
+                key = proxy_cache_key(surface, proxy_config, camera_distance)
+                if stored is not None:
+                    where = f"--proxy-from {proxy_from}: object {obj.name!r}"
+                    if obj.name not in stored:
+                        raise NerfEditError(f"{where}: that scene edit has no such object")
+                    file = Path(proxy_from) / "objects" / obj.name / "proxy.npz"
+                    proxy = stored_proxy(file, stored[obj.name], surface, proxy_config, camera_distance, where)
+                    cached = True
+                else:
+                    proxy, cached = cached_proxy(surface, proxy_config, cache_dir, camera_distance, clock.progress)
+                (stage / "objects" / obj.name).mkdir(parents=True, exist_ok=True)
+                proxy.save(stage / "objects" / obj.name / "proxy.npz")
             with clock.stage(f"edit {obj.name}"):
                 runs = [
                     _run_instance(inst, surface, proxy, lift, lift_config, stage, clock.progress)
@@ -416,7 +431,7 @@ def run_objects_edit(
                 {
                     "name": obj.name,
                     "surface": {"vertices": surface.n_vertices, "faces": len(surface.faces)},
-                    "proxy": {"vertices": len(proxy.vertices), "tets": len(proxy.tets), "cached": cached},
+                    "proxy": {"vertices": len(proxy.vertices), "tets": len(proxy.tets), "cached": cached, "key": key},
                     "removed": obj.removed,
                     "vacated": obj.vacated,
                     "fill": fill,
@@ -466,3 +481,13 @@ def run_objects_edit(
     for message in found:
         warnings.warn(message, stacklevel=2)
     return Path(out), report
+
+
+def _stored_keys(folder: Path) -> dict[str, object]:
+    """object name → proxy key, as the scene edit at ``folder`` recorded them in its report.json."""
+    file = folder / "report.json"
+    try:
+        report = json.loads(file.read_text())
+        return {o["name"]: o["proxy"].get("key") for o in report["objects"]}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        raise NerfEditError(f"--proxy-from {folder}: {file} records no scene edit's objects") from None

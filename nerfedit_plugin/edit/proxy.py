@@ -455,6 +455,29 @@ def proxy_cache_key(mesh: SurfaceMesh, config: ProxyConfig, camera_distance: flo
     return digest.hexdigest()
 
 
+def stored_proxy(
+    file: Path, recorded_key: object, mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None, where: str
+) -> TetProxy:
+    """The proxy an earlier edit stored in ``file`` — a :meth:`TetProxy.save` file, or a ``deformation.npz`` whose rest
+    tets are the proxy as built — with ``mesh`` embedded again (:func:`proxy_from_tets`). ``recorded_key`` is that
+    edit's :func:`proxy_cache_key`; unless it is ``mesh``'s with ``config`` and ``camera_distance``, a
+    :class:`NerfEditError` naming ``where``. pytetwild is not deterministic: this (or a warm cache) is how a re-run
+    gives the same ``deformation.npz`` bit for bit."""
+    if recorded_key != proxy_cache_key(mesh, config, camera_distance):
+        raise NerfEditError(
+            f"{where}: its proxy was built from another mesh or other proxy settings "
+            "(mesh, --proxy.*, camera distance must be those of that edit; the config.yml of an edit names the "
+            "edit's own proxy: pass --proxy-from None to build a new one)"
+        )
+    if file.name == "deformation.npz":
+        from nerfedit_plugin.bending.deformation_field import DeformationField
+
+        field = DeformationField.load(file)
+        return proxy_from_tets(field.rest_vertices, field.tets, mesh, f"{where}: {file}")
+    built = TetProxy.load(file)
+    return proxy_from_tets(built.vertices, built.tets, mesh, f"{where}: {file}")
+
+
 def cached_proxy(
     mesh: SurfaceMesh,
     config: ProxyConfig,

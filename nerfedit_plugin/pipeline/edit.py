@@ -25,7 +25,7 @@ from nerfedit_plugin.config import to_plain, write_config
 from nerfedit_plugin.edit.deformer import DeformerConfig, checked_frames, mesh_digest
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
-from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, proxy_from_tets
+from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, stored_proxy
 from nerfedit_plugin.edit.spec import copy_spec_file, load_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
@@ -47,11 +47,9 @@ def reuse_proxy(
     source: str | os.PathLike, mesh: SurfaceMesh, config: ProxyConfig, camera_distance: float | None = None
 ) -> TetProxy:
     """The tet proxy of an earlier edit (its folder or its ``deformation.npz``), for the same rest mesh and proxy
-    settings: the proxy as built (the folder's ``proxy.npz``: the lift may have refined it since; folders without
-    one, the rest tets of ``deformation.npz``) with ``mesh`` embedded again. pytetwild is not deterministic, so this
-    (or a warm cache) is how a re-run gives the same ``deformation.npz`` bit for bit. The folder's
-    ``report.json`` must record the proxy key (:func:`proxy_cache_key`) of ``mesh``, ``config`` and
-    ``camera_distance``; otherwise :class:`NerfEditError`."""
+    settings (:func:`~nerfedit_plugin.edit.proxy.stored_proxy`): the proxy as built (the folder's ``proxy.npz``: the
+    lift may have refined it since; folders without one, the rest tets of ``deformation.npz``). The folder's
+    ``report.json`` records its proxy key; a folder without one is a :class:`NerfEditError`."""
     source = Path(source)
     path = source / "deformation.npz" if source.is_dir() else source
     if not source.exists():
@@ -63,17 +61,8 @@ def reuse_proxy(
         raise NerfEditError(
             f"--proxy-from {source}: {report_path} records no proxy key (not an edit folder of this nerfedit)"
         ) from None
-    if recorded != proxy_cache_key(mesh, config, camera_distance):
-        raise NerfEditError(
-            f"--proxy-from {source}: its proxy was built from another mesh or other proxy settings "
-            "(mesh, --proxy.*, camera distance must be those of that edit; the config.yml of an edit names the "
-            "edit's own proxy: pass --proxy-from None to build a new one)"
-        )
-    if (path.parent / "proxy.npz").is_file():
-        built = TetProxy.load(path.parent / "proxy.npz")
-        return proxy_from_tets(built.vertices, built.tets, mesh, f"--proxy-from {path.parent / 'proxy.npz'}")
-    field = DeformationField.load(path)
-    return proxy_from_tets(field.rest_vertices, field.tets, mesh, f"--proxy-from {path}")
+    file = path.parent / "proxy.npz" if (path.parent / "proxy.npz").is_file() else path
+    return stored_proxy(file, recorded, mesh, config, camera_distance, f"--proxy-from {source}")
 
 
 DEFORMATION, REPORT, CONFIG = "deformation.npz", "report.json", "config.yml"
@@ -212,8 +201,6 @@ def run_edit(
     (the deformer's :attr:`~nerfedit_plugin.edit.deformer.Deformer.on_progress`, the proxy build's steps, the
     lift's frames and iterations)."""
     if is_objects_spec(edit):
-        if proxy_from is not None:
-            raise NerfEditError("--proxy-from: not available for a scene edit (a spec with 'objects')")
         return EditResult(
             *run_objects_edit(
                 mesh,
@@ -226,6 +213,7 @@ def run_edit(
                 camera_distance=camera_distance,
                 source_to_world=source_to_world,
                 cache_dir=Path(cache_dir or default_cache_dir()),
+                proxy_from=proxy_from,
                 base=base,
                 overwrite=overwrite,
                 record=record,

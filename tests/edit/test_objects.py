@@ -355,3 +355,32 @@ def test_faces_joining_a_moved_object_to_the_rest_are_dropped_from_the_scene_mes
         (scene,) = _scene_frames(mesh, [idx], [part], spec, placed, 1)
         assert len(scene.faces) == faces
         assert np.linalg.norm(np.diff(scene.vertices[scene.faces], axis=1), axis=2).max() < 1.5
+
+
+def test_a_scene_edit_reruns_bit_for_bit_from_its_config_with_an_empty_cache(scene, tmp_path, monkeypatch):
+    """Each object's proxy as built is kept in the folder (objects/NAME/proxy.npz) and config.yml names the folder
+    as --proxy-from: a re-run draws no new pytetwild proxy and gives the same deformation.npz."""
+    from nerfedit_plugin.cli.app import main
+
+    scene["mesh"].save(tmp_path / "scene.ply")
+    handles = [
+        {"select": {"box": {"min": [-1, -1, -0.1], "max": [1, 1, 0.05]}}, "fixed": True},
+        {"select": {"box": {"min": [-1, -1, 0.35], "max": [1, 1, 1]}}, "transform": {"translate": [0.05, 0, 0]}},
+    ]
+    spec = {
+        "objects": [
+            {"name": "box", "select": BOX, "edit": {"handles": handles}},
+            {"name": "cylinder", "select": CYLINDER, "place": {"translate": [0, 0.2, 0]}},
+        ]
+    }
+    path = write_spec(tmp_path, spec)
+    monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "cache-a"))
+    assert main(["edit", "--mesh", str(tmp_path / "scene.ply"), "--edit", str(path), "--out", str(tmp_path / "a")]) == 0
+    assert {p.parent.name for p in (tmp_path / "a" / "objects").glob("*/proxy.npz")} == {"box", "cylinder"}
+    monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "cache-b"))
+    assert main(["edit", "--load-config", str(tmp_path / "a" / "config.yml"), "--out", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "b" / "deformation.npz").read_bytes() == (tmp_path / "a" / "deformation.npz").read_bytes()
+    assert not (tmp_path / "cache-b").exists() or not any((tmp_path / "cache-b").iterdir())
+    changed = write_spec(tmp_path / "other", {"objects": [{"name": "box", "select": CYLINDER}]})
+    args = ["--mesh", str(tmp_path / "scene.ply"), "--edit", str(changed), "--proxy-from", str(tmp_path / "a")]
+    assert main(["edit", *args, "--out", str(tmp_path / "c")]) == 2  # another surface under the name: refused
