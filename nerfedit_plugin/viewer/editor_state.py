@@ -193,22 +193,6 @@ class EditorState:
         kind = "fixed" if fixed else "moving"
         return f"handle {len(handles) - 1}: {kind}, {len(chosen)} {self.backend.what}" + self.backend.note(handles)
 
-    def activate(self, index: int) -> str:
-        """Make moving handle ``index`` the one moves act on."""
-        if not 0 <= index < len(self.handles) or self.handles[index].fixed:
-            raise NerfEditError(f"handle {index}: no such moving handle")
-        self._commit(dataclasses.replace(self.current, active=index), True)
-        return f"handle {index} active"
-
-    def remove_handle(self, index: int) -> str:
-        if not 0 <= index < len(self.handles):
-            raise NerfEditError(f"handle {index}: no such handle")
-        handles = self.handles[:index] + self.handles[index + 1 :]
-        active = self.current.active
-        active = None if active == index else (active - 1 if active is not None and active > index else active)
-        self._commit(dataclasses.replace(self.current, handles=handles, active=active), True)
-        return f"handle {index} removed"
-
     # ---- moves of the active handle ------------------------------------------------------------
     def _moved(self, change, record: bool) -> str:
         handle = self.active

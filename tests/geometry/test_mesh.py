@@ -117,3 +117,11 @@ def test_self_intersecting_faces_are_those_across_the_other_part():
             centres = both.vertices[both.faces[mine]].mean(axis=1)
             distance = np.abs(np.linalg.norm(centres - theirs.centroid, axis=1) - 1.0)
             assert not (crossing[mine] & (distance > 0.2)).any()  # edges of this sphere are ~0.1
+
+
+@pytest.mark.parametrize("colors", [None, COLORS])
+def test_open3d_and_trimesh_conversions_are_lossless(colors):
+    mesh = SurfaceMesh(MESH.vertices, MESH.faces, colors)
+    assert _equal(SurfaceMesh.from_open3d(mesh.to_open3d()), mesh)
+    back = mesh.to_trimesh()
+    assert np.array_equal(back.vertices, mesh.vertices) and np.array_equal(back.faces, mesh.faces)
