@@ -106,3 +106,19 @@ def test_ray_bending_reproduces_the_deformed_mesh(capsule, capsule_proxy):
     }
     assert scores["tet-arap"] >= 35.0, scores
     assert scores["tet-arap"] >= max(scores["closest-point"], scores["knn3"]) + 5.0, scores
+
+
+def test_a_mesh_without_colours_trains_with_a_colour_option(sphere, tmp_path, capsys):
+    """`nerfedit train --field mesh` refuses a mesh without vertex colours, naming the option that gives it one."""
+    from nerfedit_plugin.cli.app import main
+    from nerfedit_plugin.pipeline.run import open_run
+
+    SurfaceMesh(sphere.vertices, sphere.faces).save(tmp_path / "plain.ply")
+    args = ["train", "--field", "mesh", "--data", str(tmp_path / "plain.ply")]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 2
+    assert "--field-options.color R G B" in capsys.readouterr().err and not (tmp_path / "a").exists()
+    assert main([*args, "--field-options.color", "0.2", "0.4", "0.6", "--out", str(tmp_path / "b")]) == 0
+    mesh = open_run(tmp_path / "b").mesh()
+    assert np.allclose(mesh.vertex_colors, [0.2, 0.4, 0.6], atol=1 / 255)
+    assert main([*args, "--field-options.color", "2", "0", "0", "--out", str(tmp_path / "c")]) == 2
+    assert "--field-options.color" in capsys.readouterr().err
