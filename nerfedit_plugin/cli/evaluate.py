@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 from pathlib import Path
 
 from nerfedit_plugin.cli.common import Command, print_table
-from nerfedit_plugin.errors import NerfEditError, check_option
+from nerfedit_plugin.errors import check_option
 
 
 @dataclasses.dataclass
@@ -29,29 +27,10 @@ class EvalArgs:
         check_option(self, "background", self.background, ok, "3 numbers in [0, 1]")
 
 
-def image_folder(path: Path, option: str) -> Path:
-    """The folder of PNGs ``path`` stands for: itself when it holds PNGs (e.g. a `nerfedit render` folder, whose
-    config.yml is ignored), else a dataset's test images (`nerfedit generate --out`: the cameras `nerfedit render
-    --cameras DATASET` renders). An animated render (frame_NNNN folders) is an error naming a frame folder."""
-    from nerfedit_plugin.data.datasets import read_transforms
-
-    if not path.is_dir() or any(path.glob("*.png")):
-        return path
-    frames = sorted(p for p in path.glob("frame_[0-9]*") if p.is_dir())
-    if frames:
-        raise NerfEditError(f"{option} {path}: an animated render; compare one frame, e.g. {option} {frames[0]}")
-    try:
-        folders = {p.parent for p in read_transforms(path, "test").image_paths}
-    except NerfEditError:
-        return path
-    return folders.pop() if len(folders) == 1 else path
-
-
 def evaluate(args: EvalArgs) -> None:
-    from nerfedit_plugin.io.atomic import write_text
-    from nerfedit_plugin.training.metrics import evaluate_folders
+    from nerfedit_plugin.pipeline.evaluate import evaluate_images
 
-    result = evaluate_folders(image_folder(args.pred, "--pred"), image_folder(args.gt, "--gt"), args.background)
+    result = evaluate_images(args.pred, args.gt, args.background, json_out=args.json_out)
     rows = list(result["images"].items()) + [("mean", result["mean"])]
     print_table(
         f"nerfedit eval: {args.pred} vs {args.gt}",
@@ -61,15 +40,6 @@ def evaluate(args: EvalArgs) -> None:
             for name, m in rows
         ],
     )
-    if args.json_out is not None:
-        write_text(args.json_out, json.dumps(_json_numbers(result), indent=2, allow_nan=False))
-
-
-def _json_numbers(value):
-    """``value`` with non-finite floats as None: JSON has no inf (the PSNR of identical images) or NaN."""
-    if isinstance(value, dict):
-        return {k: _json_numbers(v) for k, v in value.items()}
-    return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
 COMMAND = Command("eval", EvalArgs, evaluate)
