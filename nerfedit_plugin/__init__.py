@@ -46,6 +46,7 @@ _API = {
     "EditFolder": "pipeline.edit",
     # bending and rendering
     "BackwardMap": "bending.maps",
+    "ForwardMap": "bending.maps",
     "DeformationField": "bending.deformation_field",
     "SceneDeformation": "bending.scene_deformation",
     "load_deformation": "bending.scene_deformation",
@@ -84,7 +85,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.bending.deformation_field import DeformationField
-    from nerfedit_plugin.bending.maps import BackwardMap
+    from nerfedit_plugin.bending.maps import BackwardMap, ForwardMap
     from nerfedit_plugin.bending.scene_deformation import SceneDeformation, load_deformation
     from nerfedit_plugin.config import InstantiateConfig
     from nerfedit_plugin.data.cameras import Cameras

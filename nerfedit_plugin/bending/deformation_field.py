@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from nerfedit_plugin.bending.locate import TetLocator, face_pairs
-from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints
+from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints, DeformedPoints
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.io.atomic import atomic_path
 
@@ -108,7 +108,8 @@ def _near(grid: tuple[torch.Tensor, torch.Tensor, torch.Tensor], x: torch.Tensor
 
 class DeformationField:
     """Tet proxy in canonical space T plus its deformed copies T' per frame; maps deformed-space points to canonical
-    (a :class:`~nerfedit_plugin.bending.maps.BackwardMap`).
+    (a :class:`~nerfedit_plugin.bending.maps.BackwardMap`) and rest points to deformed space (a
+    :class:`~nerfedit_plugin.bending.maps.ForwardMap`).
 
     ``rest_vertices (N,3)``, ``tets (K,4)`` int, ``deformed_vertices (F,N,3)`` (or ``(N,3)`` for one frame), arrays
     or tensors, stored as float64 / int64 numpy arrays; points are mapped in ``dtype`` on ``device``.
@@ -295,6 +296,39 @@ class DeformationField:
         in the field's dtype (float32 by default) on its device."""
         bent = self.bend(x, frame)
         return CanonicalPoints(bent.points, bent.tet >= 0, bent.empty, self.jacobian(bent.tet, frame))
+
+    def to_deformed(self, x: torch.Tensor, frame: int = 0) -> DeformedPoints:
+        """Map rest points ``x (M,3)`` to deformed space in ``frame``: a point in rest tet ``t`` with barycentrics
+        ``b`` goes to ``Σ b_i d_i`` (``d_i`` the tet's corners in the frame), with gradient ``F_t = D'_t D_t⁻¹``
+        (``D`` the tet's edge vectors ``[r1-r0, r2-r0, r3-r0]``, ``D'`` the deformed ones); points outside the rest
+        proxy, and points in still tets, map by the exact identity. → :class:`DeformedPoints` in the field's dtype on
+        its device (points located as by :meth:`bend`'s rest locator: exact, the same tet as brute force)."""
+        frame = self._check_frame(frame)
+        x = torch.as_tensor(x).to(device=self.device, dtype=self.dtype).reshape(-1, 3)
+        tet, bary = self._rest().locate(x)
+        still = torch.as_tensor(self.still_tets(frame), device=self.device)
+        moving = torch.nonzero(tet >= 0).squeeze(1)
+        moving = moving[~still.index_select(0, tet.index_select(0, moving))]
+        found = tet.index_select(0, moving)
+        tets = torch.as_tensor(self.tets, device=self.device).index_select(0, found)
+        deformed = torch.as_tensor(self.deformed_vertices[frame], device=self.device)[tets]  # (P,4,3) float64
+        points = x.clone()
+        points.index_copy_(0, moving, (bary.index_select(0, moving).double()[:, :, None] * deformed).sum(1).to(x))
+        gradient = torch.eye(3, dtype=self.dtype, device=self.device).repeat(len(x), 1, 1)
+        gradient.index_copy_(0, moving, self._gradients(frame).index_select(0, found))
+        return DeformedPoints(points, tet >= 0, gradient)
+
+    def _gradients(self, frame: int) -> torch.Tensor:
+        """``(K,3,3)`` the deformation gradients ``D' D⁻¹`` of ``frame``'s tets (identity for degenerate ones)."""
+        tets = torch.as_tensor(self.tets, device=self.device)
+        rest = torch.as_tensor(self.rest_vertices, device=self.device)[tets]
+        deformed = torch.as_tensor(self.deformed_vertices[frame], device=self.device)[tets]
+        edges_rest = (rest[:, 1:] - rest[:, :1]).transpose(1, 2)
+        edges = (deformed[:, 1:] - deformed[:, :1]).transpose(1, 2)
+        ok = torch.linalg.det(edges_rest) != 0
+        eye = torch.eye(3, dtype=torch.float64, device=self.device)
+        inverse = torch.linalg.inv(torch.where(ok[:, None, None], edges_rest, eye))
+        return torch.where(ok[:, None, None], edges @ inverse, eye).to(self.dtype)
 
     def save(self, path: str | os.PathLike) -> None:
         """Write ``deformation.npz`` atomically."""

@@ -1,10 +1,15 @@
-"""The contract between a deformation and what it moves: the backward map a ray-marched field is rendered through.
+r"""The contracts between a deformation and what it moves: the backward and the forward map.
 
 A ray-marched field (``Field.rendering == "rays"``) is rendered by bending each sample of a camera ray from deformed
 space back into canonical (rest) space, where the unchanged field is queried: :class:`BackwardMap` is what the
 renderer (:mod:`nerfedit_plugin.render.renderer`) needs of any deformation for that. ``DeformationField`` (one tet
-proxy and its frames) and ``SceneDeformation`` (several objects, copies and chained edits) declare it; a third
-party's deformation passes if it has the members (a structural :class:`typing.Protocol`).
+proxy and its frames) and ``SceneDeformation`` (several objects, copies and chained edits) declare it.
+
+A field drawn from primitives (``Field.rendering == "primitives"``) moves the primitives instead:
+:class:`ForwardMap` carries rest points into deformed space with the local Jacobian ``F = ∂x'/∂x`` (a tet's
+deformation gradient ``D' D⁻¹``, ``D`` the matrix of its edge vectors), which a primitive's shape is transformed by.
+``DeformationField`` declares it. Both are structural :class:`typing.Protocol`\ s: a third party's deformation
+passes if it has the members.
 """
 
 from __future__ import annotations
@@ -26,6 +31,12 @@ class CanonicalPoints(NamedTuple):
     inside: torch.Tensor  # (M,) bool: located in the deformed proxy T' (mapped)
     empty: torch.Tensor  # (M,) bool: outside T' but inside the rest proxy T
     jacobian: torch.Tensor  # (M,3,3) dx_c/dx, constant per tet; identity where not inside
+
+
+class DeformedPoints(NamedTuple):
+    points: torch.Tensor  # (M,3) x' (x itself where not inside the rest proxy T)
+    inside: torch.Tensor  # (M,) bool: located in the rest proxy T (mapped)
+    gradient: torch.Tensor  # (M,3,3) dx'/dx, constant per tet; identity where not inside
 
 
 @runtime_checkable
@@ -55,3 +66,16 @@ class BackwardMap(Protocol):
 
     def to_canonical(self, x: torch.Tensor, frame: int = 0) -> CanonicalPoints:
         """:meth:`bend` and :meth:`jacobian` at once → :class:`CanonicalPoints`."""
+
+
+@runtime_checkable
+class ForwardMap(Protocol):
+    """Canonical (rest) space → deformed space, per frame ``0 ≤ frame < n_frames``: a rest point in the proxy moves
+    with it; every other point stays (``x' = x``, ``F = I``)."""
+
+    @property
+    def n_frames(self) -> int:
+        """Frames of the deformation."""
+
+    def to_deformed(self, x: torch.Tensor, frame: int = 0) -> DeformedPoints:
+        """Map rest points ``x (M,3)`` to ``frame`` → :class:`DeformedPoints`."""
