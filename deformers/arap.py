@@ -49,11 +49,11 @@ class ArapConfig(DeformerConfig):
     tolerance: float = 1e-6
     """Stop when the relative energy decrease per iteration falls below this."""
     solver: Literal["lbfgs", "anderson"] = "lbfgs"
-    """Minimiser (``ArapSolver.solve``'s ``method``): L-BFGS on the ARAP energy preconditioned by the prefactored
-    system, or Anderson-accelerated local/global iterations. Both never increase the energy; measured on the bunny
-    head edit (docs/benchmarks.md, issue 18) L-BFGS ties Anderson at 28k vertices and needs fewer iterations and
-    less CPU time to reach the converged energy at 112k and 449k, and within the 200-iteration default it ends
-    much closer to it at 449k."""
+    """Minimiser (``ArapSolver.solve``'s ``method``): ``lbfgs``, L-BFGS on the ARAP energy with the prefactored
+    system as its initial inverse Hessian, or ``anderson``, Anderson-accelerated local/global iterations. Both never
+    increase the energy and cost one back-substitution per iteration. L-BFGS is as fast on small meshes and needs
+    fewer iterations on large ones (from about 100k vertices), so within ``max_iterations`` it ends closer to the
+    converged energy."""
 
     def __post_init__(self) -> None:
         check_option(self, "max_iterations", self.max_iterations, self.max_iterations >= 1, ">= 1")

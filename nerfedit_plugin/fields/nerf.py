@@ -36,11 +36,10 @@ from nerfedit_plugin.training.trainer import TrainerConfig, train
 class NerfConfig(GridFieldConfig):
     """Dense-grid NeRF: a density field and a colour grid (view-dependent decoder optional), trained on posed images.
 
-    The defaults are the CPU preset for the 100×100 built-in scene (target: test PSNR ≥ 30 dB
-    within 5 min on 2 cores; ``bench/bench_train.py --clock cpu`` measured 30.5 dB at 90 s and 34.9 dB after 300 s,
-    660 steps; the plain 96³ floor 25.4 dB); :meth:`tiny` is a seconds-scale preset for tests. The grid starts at
-    64³ for 300 steps (one cell ≈ one pixel footprint at 100×100: every vertex gets gradients often, test PSNR
-    ≈ 32 dB at step 300), then 128³ (≈ 35 dB at step 450)."""
+    The defaults are the CPU preset for the 100×100 built-in scene, sized for a test PSNR of at least 30 dB within
+    5 minutes of training on 2 cores (``bench/bench_train.py``); :meth:`tiny` is a seconds-scale preset for tests.
+    The grid starts at 64³ for 300 steps (one cell ≈ one pixel footprint at 100×100, so every vertex gets gradients
+    often), then refines to 128³."""
 
     _target: type = dataclasses.field(default_factory=lambda: NerfField)
     density_init: float = 0.1
@@ -53,8 +52,8 @@ class NerfConfig(GridFieldConfig):
     mesh_level: float = 25.0
     """Default density level of :meth:`NerfField.extract_mesh`."""
     lr_background: float = 0.3
-    """Adam learning rate of the background grid (3× the grid's: on the generated bunny + cow scene, 120 CPU-s,
-    held-out PSNR 20.62 dB against 19.41 dB at 0.1; docs/benchmarks.md, "Scenes: background model")."""
+    """Adam learning rate of the background grid, the model of what lies outside the scene box on opaque images
+    (scenes); unused on object datasets."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -52,23 +52,20 @@ class NeusConfig(GridFieldConfig):
     replaces the sphere by the signed distance to the visual hull of the covered pixels (at the starting grid
     resolution), so training starts near the surface. Opaque images (a scene) have no silhouettes: the field starts
     from the box's own surface (shrunk by two cells), carved by the photometric hull when a background layer is found
-    (the pixels that see the floor or the far sphere through the box, :meth:`GridField.free_depths`) — on the
-    generated bunny + cow scene after 300 CPU-s, test pixels on the objects 27.1 dB vs 18.5 dB from the box alone,
-    all pixels 32.2 vs 25.6 dB (docs/benchmarks.md, "The photometric hull")."""
+    (the pixels that see the floor or the far sphere through the box, :meth:`GridField.free_depths`). Off: the
+    sphere of ``init_radius``."""
     init_shell: float = 4.0
     """With ``init_hull`` on images with silhouettes: start from the hull's shell of this thickness in final cells
     (``f = |d + t/2| − t/2``, ``d`` the hull's signed distance), hollow inside; 0: the solid hull. The hull closes a
     cavity no silhouette sees into (a cup, a bowl) with a lid, which a solid start has to carve away cell by cell,
     while the colour loss opens a thin lid onto the hollow. Where the object lies deeper than ``t`` inside its hull
     (the bunny's concavities), training pierces the shell and the void behind it is filled after training
-    (``fill_gap``). Measured on the generated set, 300 s (docs/benchmarks.md, "Fields on the benchmark scene set"):
-    cup 33.4 dB, Chamfer 0.26 % against 26.9 dB, 1.6 % from the solid hull. A scene's photometric hull starts solid:
-    below its floor it reaches the box's border unseen, and a shell there left a hollow open to the border, whose roof
-    was extracted as a second floor (32.1 dB solid vs 32.0 with the shell on bench_fields' scene)."""
+    (``fill_gap``). A scene's photometric hull always starts solid: below its floor it reaches the box's border
+    unseen, and a shell there would leave a hollow open to the border, extracted as a second floor."""
     fill_gap: int = 1
     """After training, voids that reach the outside only through gaps of at most ``2·fill_gap`` grid vertices are
-    filled (:meth:`NeusField.fill_voids`; 0: only voids closed off entirely). The shell start leaves such voids
-    where training pierced it (the bunny: Chamfer 0.90 % unfilled, 0.32 % filled)."""
+    filled (:meth:`NeusField.fill_voids`; 0: only voids closed off entirely). The shell start (``init_shell``)
+    leaves such voids where training pierced it."""
     sharpness_init: float = 0.5
     """Initial NeuS sharpness times the final cell size, ``s · h`` (0.5: the logistic density spans ~2 cells)."""
     eikonal_weight: float = 1e-3
@@ -89,9 +86,9 @@ class NeusConfig(GridFieldConfig):
     train: TrainerConfig = dataclasses.field(
         default_factory=lambda: TrainerConfig(batch_rays=2048, n_samples=64, lr_decay_steps=600)
     )
-    """Optimisation budget and schedule: the occupancy band makes 64 samples per ray enough; the learning rates reach
-    their final value after 600 steps whatever the budget (300 s with the decay over the whole budget: cup 30.5 dB,
-    bunny 33.1 dB; over 600 steps: 33.4, 34.5 dB)."""
+    """Optimisation budget and schedule: 64 samples per ray (the occupancy band keeps them near the surface); the
+    learning rates decay to their final value over the first 600 steps whatever the budget, so a longer budget
+    trains on at the final rate."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

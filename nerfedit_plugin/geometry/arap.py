@@ -437,7 +437,7 @@ class ArapSolver:
         iterations, whose iterates are libigl's ``arap_solve`` iterates); ``"lbfgs"``, L-BFGS on E (Liu, Bouaziz &
         Kavan 2017; history :data:`LBFGS_DEPTH`, initial inverse Hessian ``γ A⁻¹``, Armijo backtracking, the plain
         local/global step when that fails). Both keep E non-increasing and cost one back-substitution per
-        iteration; L-BFGS needs far fewer iterations on large meshes (docs/benchmarks.md, issue 18).
+        iteration; L-BFGS needs far fewer iterations on large meshes (docs/benchmarks.md, "Edits at scale").
 
         ``callback(k, energies[k])``, if given, is called as each energy of :attr:`ArapResult.energies` is known
         (k = 0 at the start, then once per iteration); it must not change the solve's arrays."""
