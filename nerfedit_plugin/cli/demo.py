@@ -17,7 +17,7 @@ class DemoArgs:
     out: Path = Path("nerfedit-demo")
     """Output folder (dataset, run, edit, renders, summary.json, config.yml)."""
     preset: Literal["fast", "tiny"] = "fast"
-    """fast: 100×100 images, 50 views, 150 s of training (≤ 5 min end to end on 2 cores); tiny: seconds (tests)."""
+    """fast: 100×100 images, 50 views, 150 s of training (minutes end to end on a CPU); tiny: seconds (tests)."""
     field: Literal["nerf", "neus"] = "neus"
     """Field backend to train (neus: an SDF, whose zero level set gives the cleanest mesh to edit)."""
     overwrite: bool = False

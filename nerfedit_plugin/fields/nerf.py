@@ -36,10 +36,9 @@ from nerfedit_plugin.training.trainer import TrainerConfig, train
 class NerfConfig(GridFieldConfig):
     """Dense-grid NeRF: a density field and a colour grid (view-dependent decoder optional), trained on posed images.
 
-    The defaults are the CPU preset for the 100×100 built-in scene, sized for a test PSNR of at least 30 dB within
-    5 minutes of training on 2 cores (``bench/bench_train.py``); :meth:`tiny` is a seconds-scale preset for tests.
-    The grid starts at 64³ for 300 steps (one cell ≈ one pixel footprint at 100×100, so every vertex gets gradients
-    often), then refines to 128³."""
+    The defaults suit an object scene of about 100×100 pixels trained in minutes on a CPU: the grid starts at 64³
+    for 300 steps (one cell ≈ one pixel footprint at 100×100, so every vertex gets gradients often), then refines to
+    128³."""
 
     _target: type = dataclasses.field(default_factory=lambda: NerfField)
     density_init: float = 0.1
