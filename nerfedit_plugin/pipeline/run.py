@@ -117,10 +117,11 @@ class Run:
         return self.source == "dataset"
 
     def camera_distance(self) -> float | None:
-        """Mean distance of the training cameras to the centre of the dataset's scene box, ``None`` for a run
-        without cameras: it sets the proxy's cage offset (5 %, as in the paper; without cameras, the proxy's own
-        default)."""
-        if not self.has_cameras():
+        """Mean distance of the training cameras to the centre of the dataset's scene box, ``None`` for a run made
+        from a model file: it sets the proxy's cage offset (5 %, as in the paper; without cameras, the proxy's own
+        default). A dataset no longer where the run recorded it is a :class:`NerfEditError` (the offset, and so the
+        proxy, would change)."""
+        if self.source == "model":
             return None
         transforms = read_transforms(self.data, "train")
         centers = transforms.cameras.c2w[:, :3, 3].double()
