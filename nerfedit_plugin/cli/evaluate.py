@@ -11,7 +11,8 @@ from nerfedit_plugin.errors import check_option
 
 @dataclasses.dataclass
 class EvalArgs:
-    """Compare rendered images with ground truth: PSNR, SSIM and LPIPS (when its weights are installed offline)."""
+    """Compare rendered images with ground truth: PSNR, SSIM, LPIPS (when its weights are installed offline) and the
+    surface noise (RMS of the error's fine detail over the ground truth's opaque pixels)."""
 
     pred: Path
     """Folder of predicted PNGs."""
@@ -34,9 +35,14 @@ def evaluate(args: EvalArgs) -> None:
     rows = list(result["images"].items()) + [("mean", result["mean"])]
     print_table(
         f"nerfedit eval: {args.pred} vs {args.gt}",
-        ("image", "PSNR (dB)", "SSIM", "LPIPS"),
+        ("image", "PSNR (dB)", "SSIM", "LPIPS", "noise"),
         [
-            (name, f"{m['psnr']:.2f}", f"{m['ssim']:.4f}", "—" if m["lpips"] is None else f"{m['lpips']:.4f}")
+            (
+                name,
+                f"{m['psnr']:.2f}",
+                f"{m['ssim']:.4f}",
+                *("—" if m[k] is None else f"{m[k]:.4f}" for k in ("lpips", "noise")),
+            )
             for name, m in rows
         ],
     )

@@ -1,4 +1,5 @@
-"""Image metrics: PSNR and SSIM (scikit-image) and LPIPS-AlexNet in torch with weights read offline.
+"""Image metrics: PSNR and SSIM (scikit-image), LPIPS-AlexNet in torch with weights read offline, and the surface
+noise of a render (:func:`surface_noise`).
 
 LPIPS (Zhang et al. 2018): images in [-1, 1], shifted/scaled per channel, AlexNet relu1..relu5 features, each
 unit-normalised over channels; d = Σ_l mean_hw(w_l · (f̂₀ − f̂₁)²). The AlexNet and linear-layer weights are the
@@ -105,15 +106,43 @@ def lpips(pred: np.ndarray, gt: np.ndarray) -> float | None:
     return float(sum(((a - b).pow(2) * w.view(1, -1, 1, 1)).sum(1).mean() for a, b, w in zip(f0, f1, lins)))
 
 
-def image_metrics(pred: np.ndarray, gt: np.ndarray) -> dict[str, float | None]:
-    """All metrics of one prediction against its ground truth."""
-    return {"psnr": psnr(pred, gt), "ssim": ssim(pred, gt), "lpips": lpips(pred, gt)}
+NOISE_SIGMA = 1.0
+"""Gaussian (pixels) whose blur :func:`surface_noise` removes from the error: what it keeps is finer than this."""
+NOISE_MARGIN = 2
+"""Pixels of the object's silhouette left out by :func:`surface_noise` (an edge misplaced by a pixel is no noise)."""
+
+
+def surface_noise(pred: np.ndarray, gt: np.ndarray, alpha: np.ndarray | None = None) -> float | None:
+    """Salt-and-pepper colour noise of a render: the RMS over the object's pixels of the high-frequency part of the
+    error, ``e − G_σ * e`` with ``e = pred − gt`` (H,W,3 in [0,1]) and ``G_σ`` a Gaussian of σ = :data:`NOISE_SIGMA`
+    pixels per channel. Smooth errors (a colour shift, a blur of smooth colour) leave it near 0; per-pixel noise on a
+    smooth surface does not. The object's pixels are those where the ground truth's ``alpha`` (H,W) is ≥ 0.99, its
+    silhouette eroded by :data:`NOISE_MARGIN` pixels (no alpha: every pixel but a border of that width). None when
+    no pixel is left."""
+    from scipy.ndimage import binary_erosion, gaussian_filter
+
+    error = np.asarray(pred, dtype=np.float64) - np.asarray(gt, dtype=np.float64)
+    high = error - gaussian_filter(error, sigma=(NOISE_SIGMA, NOISE_SIGMA, 0), mode="nearest")
+    inside = np.ones(error.shape[:2], dtype=bool) if alpha is None else np.asarray(alpha) >= 0.99
+    inside = binary_erosion(inside, iterations=NOISE_MARGIN, border_value=0)
+    return float(np.sqrt((high[inside] ** 2).mean())) if inside.any() else None
+
+
+def image_metrics(pred: np.ndarray, gt: np.ndarray, alpha: np.ndarray | None = None) -> dict[str, float | None]:
+    """All metrics of one prediction against its ground truth (``alpha``: the ground truth's, for the noise)."""
+    return {
+        "psnr": psnr(pred, gt),
+        "ssim": ssim(pred, gt),
+        "lpips": lpips(pred, gt),
+        "noise": surface_noise(pred, gt, alpha),
+    }
 
 
 def evaluate_folders(pred_dir: str | Path, gt_dir: str | Path, background=(1.0, 1.0, 1.0)) -> dict:
     """Metrics of every ``*.png`` in ``gt_dir`` against the same-named image in ``pred_dir`` (RGBA composited over
-    ``background``): ``{"images": {name: metrics}, "mean": metrics}``. A missing prediction or a size mismatch is an
-    error naming the file."""
+    ``background``; the noise over the ground truth's opaque pixels): ``{"images": {name: metrics}, "mean":
+    metrics}``, the mean of a metric None when an image has none (LPIPS without its weights), the noise's over the
+    images that have one. A missing prediction or a size mismatch is an error naming the file."""
     pred_dir, gt_dir = Path(pred_dir), Path(gt_dir)
     for folder in (pred_dir, gt_dir):
         if not folder.is_dir():
@@ -125,20 +154,16 @@ def evaluate_folders(pred_dir: str | Path, gt_dir: str | Path, background=(1.0, 
     for name in names:
         if not (pred_dir / name).is_file():
             raise NerfEditError(f"{pred_dir / name}: missing (the ground truth {gt_dir / name} has no prediction)")
-        pred, gt = (composite(*read_image(folder / name), background) for folder in (pred_dir, gt_dir))
+        pred = composite(*read_image(pred_dir / name), background)
+        rgb, alpha = read_image(gt_dir / name)
+        gt = composite(rgb, alpha, background)
         if pred.shape != gt.shape:
             raise NerfEditError(
                 f"{pred_dir / name}: image is {pred.shape[1]}x{pred.shape[0]}, the ground truth "
                 f"is {gt.shape[1]}x{gt.shape[0]}"
             )
-        per_image[name] = image_metrics(pred, gt)
-    keys = next(iter(per_image.values())).keys()
-    mean = {
-        k: (
-            None
-            if any(m[k] is None for m in per_image.values())
-            else float(np.mean([m[k] for m in per_image.values()]))
-        )
-        for k in keys
-    }
+        per_image[name] = image_metrics(pred, gt, alpha)
+    values = {k: [m[k] for m in per_image.values()] for k in next(iter(per_image.values()))}
+    values["noise"] = [v for v in values["noise"] if v is not None] or [None]
+    mean = {k: None if None in v else float(np.mean(v)) for k, v in values.items()}
     return {"images": per_image, "mean": mean}

@@ -2,8 +2,9 @@
 
 import numpy as np
 import pytest
+from scipy.ndimage import gaussian_filter
 
-from nerfedit_plugin.training.metrics import image_metrics, lpips, lpips_available, psnr, ssim
+from nerfedit_plugin.training.metrics import image_metrics, lpips, lpips_available, psnr, ssim, surface_noise
 
 RNG = np.random.default_rng(0)
 IMAGE = np.clip(RNG.random((64, 64, 3)) * 0.5 + 0.25, 0, 1).astype(np.float32)
@@ -120,7 +121,8 @@ def test_evaluate_folders_composites_and_averages(tmp_path, monkeypatch):
     out = metrics.evaluate_folders(str(pred), str(gt), background=(1.0, 1.0, 1.0))
     assert list(out) == ["images", "mean"] and list(out["images"]) == ["a.png", "b.png"]
     a, b = out["images"]["a.png"], out["images"]["b.png"]
-    assert set(a) == {"psnr", "ssim", "lpips"}
+    assert set(a) == {"psnr", "ssim", "lpips", "noise"}
+    assert a["noise"] is None and b["noise"] is not None and out["mean"]["noise"] == b["noise"]  # a: transparent
     assert a["psnr"] == pytest.approx(-10 * np.log10(0.04), rel=1e-5)
     assert b["psnr"] == pytest.approx(-10 * np.log10(0.16), rel=1e-5)
     assert out["mean"]["psnr"] == pytest.approx((a["psnr"] + b["psnr"]) / 2)
@@ -150,3 +152,28 @@ def test_evaluate_folders_errors_name_the_file(tmp_path):
     write_png(pred / "a.png", 10, shape=(2, 4))
     with pytest.raises(NerfEditError, match=r"pred/a\.png: image is 4x2, the ground truth is 5x2"):
         evaluate_folders(pred, gt)
+
+
+def _smooth_object(size: int = 64, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A disc of smoothly varying colour on transparent ground: ``(rgb (H,W,3), alpha (H,W))``."""
+    y, x = np.mgrid[0:size, 0:size] / size
+    rgb = np.stack([0.5 + 0.3 * np.sin(3 * x + seed), 0.4 + 0.2 * np.cos(2 * y), 0.3 + 0.2 * x * y], -1)
+    alpha = (((x - 0.5) ** 2 + (y - 0.5) ** 2) < 0.16).astype(np.float64)
+    return rgb, alpha
+
+
+def test_surface_noise_catches_salt_and_pepper_and_not_smooth_errors():
+    rgb, alpha = _smooth_object()
+    rng = np.random.default_rng(0)
+    salt = rgb.copy()
+    hit = rng.random(rgb.shape[:2]) < 0.05
+    salt[hit] = rng.random((hit.sum(), 3))
+    shifted = np.clip(rgb + 0.08, 0, 1)  # a colour shift: PSNR 22 dB, no noise
+    blurred = np.stack([gaussian_filter(rgb[..., c], 1.5) for c in range(3)], -1)
+    edge = np.where(np.roll(alpha, 1, axis=1)[..., None] > 0.5, rgb, 1.0)  # the silhouette one pixel off
+    assert surface_noise(rgb, rgb, alpha) == 0.0
+    noisy = surface_noise(salt, rgb, alpha)
+    assert noisy > 0.05
+    for smooth in (shifted, blurred, np.where(alpha[..., None] > 0.5, edge, rgb)):
+        assert surface_noise(smooth, rgb, alpha) < noisy / 10
+    assert surface_noise(salt, rgb, np.zeros_like(alpha)) is None  # no object: no value
