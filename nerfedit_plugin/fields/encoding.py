@@ -6,6 +6,8 @@ Why dense rather than hashed or ``grid_sample``: docs/architecture.md, "fields/"
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 
@@ -110,10 +112,11 @@ def _blend(pair: torch.Tensor) -> torch.Tensor:
 
 
 def spherical_harmonics(directions: torch.Tensor, degree: int) -> torch.Tensor:
-    """Real SH basis of unit ``directions (M,3)`` up to ``degree`` ∈ {0, 1, 2}: ``(M, (degree+1)²)`` columns
-    (the constants of Sloan's "Stupid SH tricks"; orthonormal on the sphere)."""
-    if degree not in (0, 1, 2):
-        raise ValueError(f"spherical_harmonics: degree must be 0, 1 or 2, got {degree}")
+    """Real SH basis of unit ``directions (M,3)`` up to ``degree`` ∈ {0, 1, 2, 3}: ``(M, (degree+1)²)`` columns
+    (the constants of Sloan's "Stupid SH tricks"; orthonormal on the sphere; the basis and order of 3D Gaussian
+    Splatting's colours)."""
+    if degree not in (0, 1, 2, 3):
+        raise ValueError(f"spherical_harmonics: degree must be 0, 1, 2 or 3, got {degree}")
     x, y, z = directions.unbind(-1)
     bands = [torch.full_like(x, 0.28209479177387814)]
     if degree >= 1:
@@ -125,5 +128,16 @@ def spherical_harmonics(directions: torch.Tensor, degree: int) -> torch.Tensor:
             0.31539156525252005 * (3.0 * z * z - 1.0),
             -1.0925484305920792 * x * z,
             0.5462742152960396 * (x * x - y * y),
+        ]
+    if degree >= 3:
+        xx, yy, zz = x * x, y * y, z * z
+        bands += [
+            -math.sqrt(35 / (32 * math.pi)) * y * (3.0 * xx - yy),
+            math.sqrt(105 / math.pi) / 2 * x * y * z,
+            -math.sqrt(21 / (32 * math.pi)) * y * (4.0 * zz - xx - yy),
+            math.sqrt(7 / math.pi) / 4 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy),
+            -math.sqrt(21 / (32 * math.pi)) * x * (4.0 * zz - xx - yy),
+            math.sqrt(105 / math.pi) / 4 * z * (xx - yy),
+            -math.sqrt(35 / (32 * math.pi)) * x * (xx - 3.0 * yy),
         ]
     return torch.stack(bands, dim=-1)

@@ -37,9 +37,9 @@ def parametrize_with_checks(configs: Any, **kwargs: Any):
     ``configs`` is a :class:`DeformerConfig` or :class:`FieldConfig` instance, or a list of them;
     ``kwargs`` are those of :func:`~nerfedit_plugin.testing.deformers.check_deformer` (``rest``, ``edit``,
     ``base_dir``, ``identity_edit``, ``rigid_edit``, ``bad_edits``, ``tol``, ``rigid_tol``, ``skip``) or of
-    :func:`~nerfedit_plugin.testing.fields.check_field` (``skip``), and apply to every config. The test receives
-    ``check`` (the config is bound in; other parameters are fixtures as usual); ``check()`` runs one property and
-    raises ``AssertionError`` naming it. Case ids are ``<config>-<check>``, e.g. ``ArapConfig-identity``; checks
+    :func:`~nerfedit_plugin.testing.fields.check_field` (``skip``, ``model``), and apply to every config. The test
+    receives ``check`` (the config is bound in; other parameters are fixtures as usual); ``check()`` runs one property
+    and raises ``AssertionError`` naming it. Case ids are ``<config>-<check>``, e.g. ``ArapConfig-identity``; checks
     in ``skip`` get no case.
 
     The decorator's arguments are evaluated when pytest collects the module, before any fixture exists: give

@@ -16,11 +16,16 @@ first use by :func:`build_field`.
 Checks (each a public function taking the built field or its config):
 ``config`` (dataclass with a docstring per field, lossless YAML round trip, ``_target`` a Field subclass with a
 valid ``kind``/``data``), ``query`` (shapes, dtypes, device, finite values, colours in [0,1], densities ≥ 0,
-deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None),
-``checkpoint`` (save → load through the registry gives the same queries; another backend's name is refused),
-``identity`` (rendering through an identity DeformationField equals the unedited render — the renderer's contract
-for every backend) and ``extract`` (a SurfaceMesh inside the scene box, or a ValueError when the level is outside
-the field's range).
+deterministic, independent of the direction unless ``view_dependent``, ``occupied`` a bool mask or None; not for a
+field with ``rendering = "primitives"``, which has no point queries: it gets no ``query`` case),
+``render`` (a small render is ``(H,W,3)``, float, finite, in [0,1], deterministic and shows the field),
+``checkpoint`` (save → load through the registry gives the same queries — the same renders for a primitives field;
+another backend's name is refused), ``identity`` (rendering through an identity DeformationField equals the unedited
+render — the renderer's contract for every backend) and ``extract`` (a SurfaceMesh inside the scene box, or a
+ValueError when the level is outside the field's range).
+
+A field made from a model file is built from the kit's coloured mesh written as a PLY, or from the file that
+``model(folder)`` writes (a backend whose model files are not meshes passes ``model=``).
 """
 
 from __future__ import annotations
@@ -57,15 +62,22 @@ def coloured_mesh() -> SurfaceMesh:
     return SurfaceMesh(v, mesh.faces, (v + 1.0) / 2.0)
 
 
-def build_field(config: FieldConfig) -> Field:
+def write_coloured_mesh(folder: Path) -> Path:
+    """Write :func:`coloured_mesh` as ``folder/model.ply``; returns the path (the kit's default model file)."""
+    path = Path(folder) / "model.ply"
+    coloured_mesh().save(path)
+    return path
+
+
+def build_field(config: FieldConfig, model: Callable[[Path], Path] | None = None) -> Field:
     """The field the kit tests: ``config.setup(scene_bbox=BOX)`` (the backend's initial state) for a field made from
-    a dataset, else ``from_file`` of the kit's model file, :func:`coloured_mesh` written as a PLY."""
+    a dataset, else ``from_file`` of the model file ``model(folder)`` writes into a temporary folder and returns
+    (default :func:`write_coloured_mesh`). The model should lie in :data:`BOX` and be visible from outside it."""
     target = config._target
     if "dataset" in target.sources:
         return config.setup(scene_bbox=BOX.clone())
     with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "model.ply"
-        coloured_mesh().save(path)
+        path = (write_coloured_mesh if model is None else model)(Path(folder))
         return target.from_file(path, config)
 
 
@@ -103,6 +115,12 @@ def check_config(config: Any) -> None:
 
 
 def _same_queries(a: Field, b: Field, what: str) -> None:
+    if a.rendering == "primitives":
+        camera = _view(a)
+        with torch.no_grad():
+            same = torch.equal(render_image(a, camera, 0, RenderConfig()), render_image(b, camera, 0, RenderConfig()))
+        assert same, f"{type(a).__name__}: {what} changes the render"
+        return
     points, dirs = _probe()
     with torch.no_grad():
         for x, y, out in zip(a.query(points, dirs), b.query(points, dirs), ("density/sdf", "rgb")):
@@ -112,7 +130,10 @@ def _same_queries(a: Field, b: Field, what: str) -> None:
 def check_query(field: Field) -> None:
     """``query`` returns ``(M,)`` and ``(M,3)`` float tensors on the points' device, finite, rgb in [0,1],
     density ≥ 0 (density fields), the same twice (and for any direction unless ``view_dependent``); ``occupied`` is
-    None or an ``(M,)`` bool mask."""
+    None or an ``(M,)`` bool mask. Nothing to check for a field with ``rendering = "primitives"`` (no point
+    queries)."""
+    if field.rendering == "primitives":
+        return
     name = type(field).__name__
     points, dirs = _probe()
     with torch.no_grad():
@@ -167,6 +188,33 @@ def _cube_tets(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return vertices, orient_tets(vertices, tets)
 
 
+def _view(field: Field, size: int = 24) -> Cameras:
+    """A camera outside the scene box looking at its centre."""
+    box = field.scene_bbox.detach().cpu().double().numpy()
+    centre, half = box.mean(0), (box[1] - box[0]) / 2
+    eye = torch.from_numpy(centre + 3.0 * np.linalg.norm(half) * np.array([0.6, -0.5, 0.62]))
+    c2w = look_at(eye[None], torch.from_numpy(centre)[None]).to(field.scene_bbox.device)
+    return Cameras.from_fov(c2w, size, size, 0.7)
+
+
+def check_render(field: Field, size: int = 24) -> None:
+    """``render_image`` of a camera looking at the scene box: ``(H,W,3)`` float on the field's device, finite, in
+    [0, 1], the same twice, and not the background alone (the kit's model is in view)."""
+    name = type(field).__name__
+    camera = _view(field, size)
+    config = RenderConfig(n_samples=64, background=(1.0, 1.0, 1.0))
+    with torch.no_grad():
+        image = render_image(field, camera, 0, config)
+        again = render_image(field, camera, 0, config)
+    assert tuple(image.shape) == (size, size, 3), f"{name}: render shape {tuple(image.shape)}, not {(size, size, 3)}"
+    assert image.dtype.is_floating_point and image.device == field.scene_bbox.device, (
+        f"{name}: the render must be a float tensor on the field's device"
+    )
+    assert torch.isfinite(image).all() and image.min() >= 0 and image.max() <= 1, f"{name}: render outside [0, 1]"
+    assert torch.equal(image, again), f"{name}: two renders of the same camera differ"
+    assert (image < 1 - 1e-3).any(), f"{name}: the render shows nothing but the background"
+
+
 def check_identity(field: Field, size: int = 24) -> None:
     """Rendering through an identity DeformationField (a box proxy around part of the scene) equals the unedited
     render of the same camera."""
@@ -174,9 +222,7 @@ def check_identity(field: Field, size: int = 24) -> None:
     centre, half = box.mean(0), (box[1] - box[0]) / 2
     vertices, tets = _cube_tets(centre - 0.6 * half, centre + 0.3 * half)
     identity = DeformationField.identity(vertices, tets)
-    eye = torch.from_numpy(centre + 3.0 * np.linalg.norm(half) * np.array([0.6, -0.5, 0.62]))
-    c2w = look_at(eye[None], torch.from_numpy(centre)[None]).to(field.scene_bbox.device)
-    camera = Cameras.from_fov(c2w, size, size, 0.7)
+    camera = _view(field, size)
     config = RenderConfig(n_samples=64)
     with torch.no_grad():
         plain = render_image(field, camera, 0, config)
@@ -204,6 +250,7 @@ def check_extract(field: Field, resolution: int = 24) -> None:
 CHECKS: dict[str, Callable] = {
     "config": check_config,
     "query": check_query,
+    "render": check_render,
     "checkpoint": check_checkpoint,
     "identity": check_identity,
     "extract": check_extract,
@@ -211,24 +258,36 @@ CHECKS: dict[str, Callable] = {
 """Check name → function: ``config`` takes the config, the others the field :func:`build_field` makes of it."""
 
 
-def run_check(name: str, config: FieldConfig, field: Callable[[], Field] | None = None) -> None:
+def run_check(
+    name: str,
+    config: FieldConfig,
+    field: Callable[[], Field] | None = None,
+    model: Callable[[Path], Path] | None = None,
+) -> None:
     """Run the check ``name`` of :data:`CHECKS` on ``config`` (``config``) or on ``field()`` (default: a new
-    :func:`build_field` of ``config``)."""
+    :func:`build_field` of ``config`` and ``model``)."""
     if name == "config":
         CHECKS[name](config)
     else:
-        CHECKS[name](build_field(config) if field is None else field())
+        CHECKS[name](build_field(config, model) if field is None else field())
 
 
-def field_checks(config: FieldConfig, *, skip: Iterable[str] = ()) -> list[tuple[str, functools.partial]]:
-    """``[(name, check), ...]`` for every check in :data:`CHECKS` not named in ``skip``: ``check()`` runs that one
-    property. The checks of one call share one field, built by :func:`build_field` when the first of them needs it
-    (not here: nothing runs until a check is called)."""
-    field = functools.cache(functools.partial(build_field, config))
-    return [(name, functools.partial(run_check, name, config, field=field)) for name in select_checks(CHECKS, skip)]
+def field_checks(
+    config: FieldConfig, *, skip: Iterable[str] = (), model: Callable[[Path], Path] | None = None
+) -> list[tuple[str, functools.partial]]:
+    """``[(name, check), ...]`` for every check in :data:`CHECKS` not named in ``skip`` (nor ``query`` for a
+    field with ``rendering = "primitives"``): ``check()`` runs that one property. The checks of one call share one
+    field, built by :func:`build_field` (of ``model``'s file for a field made from a model) when the first of them
+    needs it (not here: nothing runs until a check is called)."""
+    build = functools.partial(build_field, config) if model is None else functools.partial(build_field, config, model)
+    field = functools.cache(build)
+    names = select_checks(CHECKS, skip)
+    if getattr(config._target, "rendering", "rays") == "primitives":
+        names = [name for name in names if name != "query"]
+    return [(name, functools.partial(run_check, name, config, field=field)) for name in names]
 
 
-def check_field(config: FieldConfig, *, skip: Iterable[str] = ()) -> None:
+def check_field(config: FieldConfig, *, skip: Iterable[str] = (), model: Callable[[Path], Path] | None = None) -> None:
     """Run every check on ``config`` and the field :func:`build_field` makes of it, except those in ``skip``."""
-    for _, check in field_checks(config, skip=skip):
+    for _, check in field_checks(config, skip=skip, model=model):
         check()

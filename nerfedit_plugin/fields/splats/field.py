@@ -1,0 +1,175 @@
+"""The ``splats`` field backend: anisotropic 3D Gaussians in the INRIA conventions, drawn by the CPU rasteriser.
+
+A run is made from a splat file (``nerfedit train --field splats --data point_cloud.ply``, or a ``.splat`` file);
+training on a dataset is not there yet. The Gaussians live in the checkpoint's state dict (``means``, ``quats``,
+``log_scales``, ``opacities``, ``sh``): the run's one store of the model. The scene box spans the
+``[p, 100 − p]`` percentiles of the means on each axis (``box_percentile``), grown by ``padding`` × its diagonal:
+imported captures carry far background Gaussians, which a min/max box would let decide the box.
+
+Rendering (:meth:`SplatsField.render`): projection and colours in torch (:mod:`.projection`), compositing by the
+numba rasteriser (:mod:`.rasterize`). A deformation (a :class:`~nerfedit_plugin.bending.maps.ForwardMap`) moves each
+mean ``μ ↦ φ(μ)`` and covariance ``Σ ↦ F Σ Fᵀ`` (``F`` the local deformation gradient); the SH coefficients are not
+rotated yet.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+import torch
+import tyro
+
+from nerfedit_plugin.errors import NerfEditError, check_option
+from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.fields.splats.files import read_splats, write_splats
+from nerfedit_plugin.fields.splats.model import SplatModel
+from nerfedit_plugin.fields.splats.projection import colors, covariances, project, view_matrix
+from nerfedit_plugin.fields.splats.rasterize import RasterStats, rasterize
+from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+PARAMETERS = ("means", "quats", "log_scales", "opacities", "sh")
+"""The Gaussians' parameters, in :class:`SplatModel` order."""
+
+
+@dataclasses.dataclass
+class SplatsConfig(FieldConfig):
+    """3D Gaussian splats (INRIA layout) from a PLY or .splat file, rasterised on the CPU."""
+
+    _target: tyro.conf.Suppress[type] = dataclasses.field(default_factory=lambda: SplatsField)
+    box_percentile: float = 1.0
+    """The scene box spans the [p, 100 − p] percentiles of the Gaussians' means on each axis (far background
+    Gaussians of a capture stay outside it)."""
+    padding: float = 0.05
+    """The percentile box is grown by this fraction of its diagonal on every side."""
+    rasterize_mode: Literal["classic", "antialiased"] = "classic"
+    """``classic``: 3DGS's rasterisation; ``antialiased``: opacities scaled by √(det(Σ₂ − 0.3 I) / det Σ₂)
+    (Mip-Splatting's 2D filter) — the mode the model was trained with (a PLY does not record it)."""
+
+    def __post_init__(self) -> None:
+        check_option(self, "box_percentile", self.box_percentile, 0 <= self.box_percentile < 50, "in [0, 50)")
+        check_option(self, "padding", self.padding, 0 <= self.padding < math.inf, "a number >= 0")
+        check_option(
+            self, "rasterize_mode", self.rasterize_mode, self.rasterize_mode in ("classic", "antialiased"),
+            "'classic' or 'antialiased'",
+        )  # fmt: skip
+
+
+class SplatsField(Field):
+    """``N`` Gaussians as parameters ``means (N,3)``, ``quats (N,4)`` (w x y z), ``log_scales (N,3)``, ``opacities
+    (N,)`` (logits), ``sh (N,K,3)``. Build one with :meth:`from_file` or :meth:`from_model`;
+    ``SplatsConfig().setup(scene_bbox=...)`` gives an empty field that :meth:`load_state_dict` fills."""
+
+    kind: ClassVar[str] = "density"
+    rendering: ClassVar[str] = "primitives"
+    sources: ClassVar[frozenset[str]] = frozenset({"model"})
+
+    def __init__(self, config: SplatsConfig, scene_bbox: torch.Tensor) -> None:
+        super().__init__(config, scene_bbox)
+        self.means = torch.nn.Parameter(torch.zeros(0, 3))
+        self.quats = torch.nn.Parameter(torch.zeros(0, 4))
+        self.log_scales = torch.nn.Parameter(torch.zeros(0, 3))
+        self.opacities = torch.nn.Parameter(torch.zeros(0))
+        self.sh = torch.nn.Parameter(torch.zeros(0, 1, 3))
+        self.last_stats = RasterStats()
+        """Counts and stage times of the last :meth:`render`."""
+
+    # ---- building --------------------------------------------------------------------------------------------------
+    @classmethod
+    def from_file(cls, path: Path, config: SplatsConfig | None = None) -> SplatsField:
+        """The field of the splat file ``path`` (INRIA/nerfstudio PLY or ``.splat``; bad files are a
+        NerfEditError naming the file)."""
+        return cls.from_model(read_splats(path), config)
+
+    @classmethod
+    def from_model(cls, model: SplatModel, config: SplatsConfig | None = None) -> SplatsField:
+        """The field of ``model`` (float32), its scene box from the percentiles of the means (module docstring)."""
+        config = SplatsConfig() if config is None else config
+        model = model.validate("splats").astype(np.float32)
+        field = cls(config, torch.from_numpy(scene_box(model.means, config.box_percentile, config.padding)))
+        for name, values in zip(PARAMETERS, model.arrays()):
+            setattr(field, name, torch.nn.Parameter(torch.from_numpy(values.copy())))
+        return field
+
+    def to_model(self) -> SplatModel:
+        """The Gaussians as a :class:`SplatModel` (float32 numpy)."""
+        return SplatModel(*(getattr(self, name).detach().cpu().numpy().copy() for name in PARAMETERS))
+
+    def write(self, path: str | Path) -> None:
+        """Write the Gaussians as a splat file (``.splat`` by suffix, else the INRIA PLY)."""
+        write_splats(self.to_model(), path)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        """Adopt the checkpoint's parameter shapes (an empty field loads any model), then load as usual."""
+        for name in PARAMETERS:
+            value = state_dict.get(prefix + name)
+            if isinstance(value, torch.Tensor):
+                current = getattr(self, name)
+                setattr(self, name, torch.nn.Parameter(torch.empty_like(value, device=current.device)))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    @property
+    def n_gaussians(self) -> int:
+        return len(self.means)
+
+    @property
+    def degree(self) -> int:
+        return round(self.sh.shape[1] ** 0.5) - 1
+
+    # ---- the Field contract ----------------------------------------------------------------------------------------
+    def query(self, points: torch.Tensor, directions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Not available: splats are drawn by rasterisation (``rendering = "primitives"``, :meth:`render`)."""
+        raise NotImplementedError("the splats field renders by rasterisation (render()), not by point queries")
+
+    def extract_mesh(self, resolution: int = 256, level: float | None = None) -> SurfaceMesh:
+        """Not available yet: raises ValueError (which ``nerfedit extract`` reports)."""
+        raise ValueError("mesh extraction from Gaussian splats is not implemented yet")
+
+    @torch.no_grad()
+    def render(self, cameras: Any, index: int, config: Any, deformation: Any = None, frame: int = 0) -> torch.Tensor:
+        """The ``(H,W,3)`` image in [0, 1] of camera ``index`` (module docstring), composited over
+        ``config.background``; with ``deformation`` (a ForwardMap) the Gaussians moved into ``frame``."""
+        if self.n_gaussians == 0:
+            raise NerfEditError("splats field: no Gaussians loaded (use SplatsField.from_file or load a checkpoint)")
+        stats, start = RasterStats(), time.perf_counter()
+        means = self.means.detach().float().cpu()
+        covars = covariances(self.quats.detach().float().cpu(), self.log_scales.detach().float().cpu())
+        if deformation is not None:
+            moved = deformation.to_deformed(means, frame)
+            gradient = moved.gradient.to(means)
+            means, covars = moved.points.to(means), gradient @ covars @ gradient.transpose(-1, -2)
+        c2w = cameras.c2w[index].detach().float().cpu()
+        rotation, translation = view_matrix(c2w)
+        intrinsics = tuple(float(getattr(cameras, k)[index]) for k in ("fx", "fy", "cx", "cy"))
+        projected = project(means, covars, rotation, translation, intrinsics, cameras.width, cameras.height)
+        opacity = torch.sigmoid(self.opacities.detach().float().cpu())
+        if self.config.rasterize_mode == "antialiased":
+            opacity = opacity * projected.compensation
+        rgb = colors(self.sh.detach().float().cpu(), means, c2w[:3, 3])
+        stats.seconds["project"] = time.perf_counter() - start
+        image, _ = rasterize(
+            projected.means2d,
+            projected.conics,
+            projected.covars2d,
+            rgb,
+            opacity,
+            projected.depths,
+            cameras.width,
+            cameras.height,
+            tuple(getattr(config, "background", (1.0, 1.0, 1.0))),
+            stats,
+        )
+        self.last_stats = stats
+        return image.clamp(0.0, 1.0).to(self.scene_bbox.device)
+
+
+def scene_box(means: np.ndarray, percentile: float, padding: float) -> np.ndarray:
+    """``(2,3)``: the ``[percentile, 100 − percentile]`` per-axis percentiles of ``means (N,3)``, grown by ``padding`` ×
+    the diagonal on every side (a box of a single point gets a unit diagonal's padding)."""
+    box = np.percentile(means.astype(np.float64), [percentile, 100.0 - percentile], axis=0)
+    diagonal = float(np.linalg.norm(box[1] - box[0])) or 1.0
+    return np.stack([box[0] - padding * diagonal, box[1] + padding * diagonal])
