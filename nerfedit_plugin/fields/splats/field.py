@@ -29,7 +29,7 @@ from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.splats.files import read_splats, write_splats
 from nerfedit_plugin.fields.splats.model import SplatModel
 from nerfedit_plugin.fields.splats.projection import colors, covariances, project, view_matrix
-from nerfedit_plugin.fields.splats.rasterize import RasterStats, rasterize
+from nerfedit_plugin.fields.splats.rasterize import RasterStats, project_gaussians, rasterize
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
 PARAMETERS = ("means", "quats", "log_scales", "opacities", "sh")
@@ -136,35 +136,35 @@ class SplatsField(Field):
         if self.n_gaussians == 0:
             raise NerfEditError("splats field: no Gaussians loaded (use SplatsField.from_file or load a checkpoint)")
         stats, start = RasterStats(), time.perf_counter()
-        means = self.means.detach().float().cpu()
-        covars = covariances(self.quats.detach().float().cpu(), self.log_scales.detach().float().cpu())
-        if deformation is not None:
-            moved = deformation.to_deformed(means, frame)
-            gradient = moved.gradient.to(means)
-            means, covars = moved.points.to(means), gradient @ covars @ gradient.transpose(-1, -2)
-        c2w = cameras.c2w[index].detach().float().cpu()
-        rotation, translation = view_matrix(c2w)
+        c2w = cameras.c2w[index].detach().double().cpu()
         intrinsics = tuple(float(getattr(cameras, k)[index]) for k in ("fx", "fy", "cx", "cy"))
-        projected = project(means, covars, rotation, translation, intrinsics, cameras.width, cameras.height)
-        opacity = torch.sigmoid(self.opacities.detach().float().cpu())
-        if self.config.rasterize_mode == "antialiased":
-            opacity = opacity * projected.compensation
-        rgb = colors(self.sh.detach().float().cpu(), means, c2w[:3, 3])
+        size = (cameras.width, cameras.height)
+        antialiased = self.config.rasterize_mode == "antialiased"
+        if deformation is None:
+            arrays = (getattr(self, name).detach().cpu().numpy() for name in PARAMETERS)
+            projected = project_gaussians(*arrays, c2w.numpy(), intrinsics, *size, antialiased)
+        else:
+            projected = self._project_moved(deformation, frame, c2w, intrinsics, size, antialiased)
         stats.seconds["project"] = time.perf_counter() - start
-        image, _ = rasterize(
-            projected.means2d,
-            projected.conics,
-            projected.covars2d,
-            rgb,
-            opacity,
-            projected.depths,
-            cameras.width,
-            cameras.height,
-            tuple(getattr(config, "background", (1.0, 1.0, 1.0))),
-            stats,
-        )
+        background = tuple(getattr(config, "background", (1.0, 1.0, 1.0)))
+        image, _ = rasterize(*projected, *size, background, stats)
         self.last_stats = stats
         return image.clamp(0.0, 1.0).to(self.scene_bbox.device)
+
+    def _project_moved(self, deformation, frame, c2w, intrinsics, size, antialiased) -> tuple[torch.Tensor, ...]:
+        """The arguments of :func:`rasterize` for the Gaussians moved by the forward map ``deformation`` at
+        ``frame``: ``μ ↦ φ(μ)``, ``Σ ↦ F Σ Fᵀ`` (the torch path of :mod:`.projection`)."""
+        means = self.means.detach().double().cpu()
+        covars = covariances(self.quats.detach().double().cpu(), self.log_scales.detach().double().cpu())
+        moved = deformation.to_deformed(means.float(), frame)
+        gradient = moved.gradient.double().cpu()
+        means, covars = moved.points.double().cpu(), gradient @ covars @ gradient.transpose(-1, -2)
+        p = project(means, covars, *view_matrix(c2w), intrinsics, *size)
+        opacity = torch.sigmoid(self.opacities.detach().double().cpu())
+        if antialiased:
+            opacity = opacity * p.compensation
+        rgb = colors(self.sh.detach().double().cpu(), means, c2w[:3, 3])
+        return p.means2d, p.conics, torch.diagonal(p.covars2d, dim1=-2, dim2=-1), rgb, opacity, p.depths
 
 
 def scene_box(means: np.ndarray, percentile: float, padding: float) -> np.ndarray:

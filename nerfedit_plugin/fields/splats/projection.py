@@ -9,12 +9,15 @@ Conventions of 3D Gaussian Splatting and gsplat, so that a model trained elsewhe
 - A mean projects to ``u = (f_x x_c / z_c + c_x, f_y y_c / z_c + c_y)`` in pixel units whose pixel ``(i, j)`` has its
   centre at ``(i + ½, j + ½)``.
 - EWA: ``Σ₂ = J Wᵀ Σ W Jᵀ + ε I`` with the affine approximation ``J = [[f_x/z, 0, −f_x x/z²], [0, f_y/z, −f_y y/z²]]``
-  of the projection at the mean (``x/z``, ``y/z`` clamped to 1.3 × the half field of view, as 3DGS does, so a
-  Gaussian far outside the frustum does not smear across it) and the low-pass dilation ``ε = 0.3`` pixel².
-  ``conic = Σ₂⁻¹`` as ``(a, b, c)`` for ``[[a, b], [b, c]]``.
+  of the projection at the mean (``x/z``, ``y/z`` clamped to the image border plus 0.3 half fields of view, as 3DGS
+  and gsplat do, so a Gaussian far outside the frustum does not smear across it) and the low-pass dilation
+  ``ε = 0.3`` pixel². ``conic = Σ₂⁻¹`` as ``(a, b, c)`` for ``[[a, b], [b, c]]``.
 - Antialiased mode (Mip-Splatting's 2D filter, gsplat's ``rasterize_mode="antialiased"``): the opacity is scaled by
   ``√(det(Σ₂ − ε I) / det Σ₂)``, so the dilation does not add energy to Gaussians smaller than a pixel.
 - Colour: ``max(Σ_k Y_k(d) sh_k + ½, 0)`` with ``d`` the unit direction from the camera centre to the mean.
+
+The renderer's fast path is the same arithmetic compiled (``rasterize.project_gaussians``); this module is the
+differentiable reference it is tested against.
 """
 
 from __future__ import annotations
@@ -29,8 +32,9 @@ EPS2D = 0.3
 """Low-pass dilation added to the 2D covariance (pixel²)."""
 NEAR = 0.01
 """Gaussians with a view depth at or below this are not drawn."""
-FRUSTUM_SLACK = 1.3
-"""The Jacobian is evaluated with ``x/z``, ``y/z`` clamped to this many half fields of view (3DGS's 1.3)."""
+FRUSTUM_SLACK = 0.3
+"""The Jacobian is evaluated with ``x/z``, ``y/z`` clamped to the image border plus this fraction of the half field of
+view (3DGS's 1.3 half fields of view for a centred principal point)."""
 _GL_TO_CV = torch.tensor([1.0, -1.0, -1.0])
 
 
@@ -64,6 +68,14 @@ def view_matrix(c2w_gl: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return rotation, -rotation @ c2w_gl[:3, 3]
 
 
+def frustum_limits(intrinsics: tuple[float, float, float, float], width: int, height: int) -> tuple[float, ...]:
+    """The clamps of ``x/z`` (towards +x, −x) and ``y/z`` (+y, −y) in the Jacobian: the image border plus
+    ``FRUSTUM_SLACK`` half fields of view."""
+    fx, fy, cx, cy = intrinsics
+    slack_x, slack_y = FRUSTUM_SLACK * 0.5 * width / fx, FRUSTUM_SLACK * 0.5 * height / fy
+    return (width - cx) / fx + slack_x, cx / fx + slack_x, (height - cy) / fy + slack_y, cy / fy + slack_y
+
+
 class Projected(NamedTuple):
     means2d: torch.Tensor  # (N,2) pixel coordinates (pixel centres at +0.5)
     conics: torch.Tensor  # (N,3) a, b, c of Σ₂⁻¹
@@ -87,10 +99,9 @@ def project(
     fx, fy, cx, cy = intrinsics
     pc = means @ rotation.T + translation
     x, y, z = pc.unbind(-1)
-    lim_x = ((width - cx) / fx + FRUSTUM_SLACK * 0.5 * width / fx, cx / fx + FRUSTUM_SLACK * 0.5 * width / fx)
-    lim_y = ((height - cy) / fy + FRUSTUM_SLACK * 0.5 * height / fy, cy / fy + FRUSTUM_SLACK * 0.5 * height / fy)
-    tx = z * torch.clamp(x / z, min=-lim_x[1], max=lim_x[0])
-    ty = z * torch.clamp(y / z, min=-lim_y[1], max=lim_y[0])
+    right, left, down, up = frustum_limits(intrinsics, width, height)
+    tx = z * torch.clamp(x / z, min=-left, max=right)
+    ty = z * torch.clamp(y / z, min=-up, max=down)
     zero = torch.zeros_like(z)
     jac = torch.stack([fx / z, zero, -fx * tx / (z * z), zero, fy / z, -fy * ty / (z * z)], dim=-1).reshape(-1, 2, 3)
     t = jac @ rotation

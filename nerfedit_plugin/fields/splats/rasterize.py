@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from nerfedit_plugin.fields.splats import _raster_kernel
-from nerfedit_plugin.fields.splats.projection import NEAR
+from nerfedit_plugin.fields.splats.projection import EPS2D, NEAR, frustum_limits, view_matrix
 from nerfedit_plugin.geometry.launch import launch
 
 TILE = 16
@@ -42,7 +42,7 @@ class RasterStats:
 
 
 def pixel_rects(
-    means2d: np.ndarray, covars2d: np.ndarray, opacities: np.ndarray, depths: np.ndarray, width: int, height: int
+    means2d: np.ndarray, variances: np.ndarray, opacities: np.ndarray, depths: np.ndarray, width: int, height: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(visible (N,) bool, rect (N,4) int32)``: the inclusive pixel box ``(x0, y0, x1, y1)`` of each Gaussian's
     ``α ≥ 1/255`` ellipse clipped to the image (module docstring); invisible ones are behind ``NEAR``, too faint, or
@@ -51,7 +51,7 @@ def pixel_rects(
         tau = np.log(np.maximum(opacities.astype(np.float64), 1e-30) / MIN_ALPHA)
         visible = (depths > NEAR) & (opacities >= MIN_ALPHA) & np.isfinite(means2d).all(1)
         tau = np.where(visible, tau, 0.0)
-        extent = np.sqrt(2.0 * tau[:, None] * np.stack([covars2d[:, 0, 0], covars2d[:, 1, 1]], 1).astype(np.float64))
+        extent = np.sqrt(2.0 * tau[:, None] * variances.astype(np.float64))
         extent = extent * _MARGIN[0] + _MARGIN[1]
         centre = np.where(visible[:, None], means2d.astype(np.float64), 0.0)
         limit = np.array([width - 1, height - 1], dtype=np.float64)
@@ -65,7 +65,7 @@ def pixel_rects(
 def rasterize(
     means2d: torch.Tensor,
     conics: torch.Tensor,
-    covars2d: torch.Tensor,
+    variances: torch.Tensor,
     colors: torch.Tensor,
     opacities: torch.Tensor,
     depths: torch.Tensor,
@@ -74,7 +74,7 @@ def rasterize(
     background: tuple[float, float, float] = (1.0, 1.0, 1.0),
     stats: RasterStats | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Composite projected Gaussians (``(N,2)``, ``(N,3)`` conics, ``(N,2,2)`` 2D covariances, ``(N,3)`` colours,
+    """Composite projected Gaussians (``(N,2)``, ``(N,3)`` conics, ``(N,2)`` the diagonal of Σ₂, ``(N,3)`` colours,
     ``(N,)`` opacities in [0, 1], ``(N,)`` view depths) → ``(image (H,W,3), transmittance (H,W))`` float32 on the
     CPU, no autograd (module docstring). ``stats`` receives the counts and stage times."""
     stats = RasterStats() if stats is None else stats
@@ -83,7 +83,7 @@ def rasterize(
     mu, conic, rgb = arrays
     opacity = np.ascontiguousarray(opacities.detach().cpu().numpy(), dtype=np.float32)
     depth = depths.detach().cpu().numpy()
-    visible, rect = pixel_rects(mu, covars2d.detach().cpu().numpy(), opacity, depth, width, height)
+    visible, rect = pixel_rects(mu, variances.detach().cpu().numpy(), opacity, depth, width, height)
     stats.seconds["cull"] = time.perf_counter() - start
     start = time.perf_counter()
     index = np.flatnonzero(visible)
@@ -122,3 +122,37 @@ def rasterize(
     stats.seconds["composite"] = time.perf_counter() - start
     stats.visible, stats.intersections = len(order), int(offsets[-1])
     return torch.from_numpy(image), torch.from_numpy(transmittance)
+
+
+def project_gaussians(
+    means: np.ndarray,
+    quats: np.ndarray,
+    log_scales: np.ndarray,
+    logits: np.ndarray,
+    sh: np.ndarray,
+    c2w: np.ndarray,
+    intrinsics: tuple[float, float, float, float],
+    width: int,
+    height: int,
+    antialiased: bool = False,
+) -> tuple[torch.Tensor, ...]:
+    """The projection, opacity and colour of :mod:`.projection` in one compiled pass (no autograd) for the OpenGL
+    camera ``c2w (4,4)`` → ``(means2d, conics, variances, colors, opacities, depths)`` as float32 tensors, the
+    arguments of :func:`rasterize`."""
+    rotation, translation = (t.numpy().astype(np.float64) for t in view_matrix(torch.as_tensor(c2w).double()))
+    n = len(means)
+    out = [np.empty((n, 2)), np.empty((n, 3)), np.empty((n, 2)), np.empty(n), np.empty(n), np.empty((n, 3))]
+    launch(
+        _raster_kernel.project_forward,
+        *(np.ascontiguousarray(a, dtype=np.float64) for a in (means, quats, log_scales, logits, sh)),
+        rotation,
+        translation,
+        np.asarray(intrinsics, dtype=np.float64),
+        np.asarray(frustum_limits(intrinsics, width, height), dtype=np.float64),
+        EPS2D,
+        antialiased,
+        np.asarray(c2w, dtype=np.float64)[:3, 3].copy(),
+        *out,
+    )
+    means2d, conics, variances, depths, opacities, colors = (torch.from_numpy(a.astype(np.float32)) for a in out)
+    return means2d, conics, variances, colors, opacities, depths
