@@ -5,6 +5,12 @@ Handle vertices are placed exactly (fixed ones stay at rest, moved ones follow t
 vertex minimises the ARAP energy. One factorisation serves all frames; each frame starts from the previous one.
 Every connected part of the mesh needs at least one handle vertex.
 
+Meshes of more than :data:`MULTIRES_ABOVE` vertices are solved by multiresolution
+(:mod:`nerfedit_plugin.geometry.multires`): exact ARAP on a vertex clustering of the surface of ``coarse_vertices``
+vertices, the fine surface carried as detail in the coarse solution's local frames, the handle vertices placed
+exactly. The coarse level and the binding are kept in the bind cache (:attr:`Deformer.bind_cache`), so the next edit
+of the same mesh reads them. ``report.json`` records the path taken under ``deformer_report``.
+
 In the editor (:class:`ArapBackend`) the handles sit on mesh vertices; each preview re-solves with a solver
 prefactored for the handle vertices, warm-started, a few iterations, and :meth:`ArapBackend.converge` finishes that
 solve (settle on release).
@@ -24,12 +30,21 @@ from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.geometry.multires import CoarseLevel, MultiresArap, coarse_level, identity_level, rigid_fit
 from nerfedit_plugin.timing import Span
 
 PREVIEW_ITERATIONS = 2
 """ARAP local/global iterations per preview solve (each ~30–40 ms on the 28k-vertex bunny, 2 cores), plain: over two
 iterations Anderson acceleration's extra local steps cost more than they gain (bunny drag: 81 vs 152 ms per move,
 +53 % vs +42 % energy above the converged solve; docs/benchmarks.md)."""
+MULTIRES_ABOVE = 60_000
+"""``multiresolution = "auto"``: meshes of more vertices than this are solved by multiresolution, the others
+directly (docs/benchmarks.md, "Edits at scale")."""
+COARSE_FORMAT = 1
+"""Version of the coarse level and binding kept in the bind cache (part of its key)."""
+RIGID_BELOW = 1e-12
+"""Handle targets within this × the bbox diagonal of one rigid motion of their rest positions make a rigid frame: its
+coarse solve starts from that motion (the minimum itself)."""
 CONVERGE_CHUNK = 5
 """ARAP iterations between two checks that a settle-on-release is still wanted. The settle uses Anderson, not the
 deformer's L-BFGS: restarted every 5 iterations, L-BFGS loses its history (bunny head edit: 66 iterations vs
@@ -55,8 +70,24 @@ class ArapConfig(DeformerConfig):
     fewer iterations on large ones (from about 100k vertices), so within ``max_iterations`` it ends closer to the
     converged energy."""
 
+    multiresolution: Literal["auto", "on", "off"] = "auto"
+    """``on``: solve ARAP on a coarse level of the surface (vertex clustering) and carry the fine surface as detail
+    in the coarse solution's local frames, handle vertices placed exactly; ``off``: solve on the mesh itself;
+    ``auto``: ``on`` for meshes of more than :data:`MULTIRES_ABOVE` vertices."""
+    coarse_vertices: int = 30_000
+    """Vertex count (a number of vertices) aimed at for the coarse level of the multiresolution solve; the
+    clustering lands within about 10 % of it. At or above the mesh's own count the coarse level is the mesh."""
+
     def __post_init__(self) -> None:
         check_option(self, "max_iterations", self.max_iterations, self.max_iterations >= 1, ">= 1")
+        check_option(
+            self,
+            "multiresolution",
+            self.multiresolution,
+            self.multiresolution in ("auto", "on", "off"),
+            "'auto', 'on' or 'off'",
+        )
+        check_option(self, "coarse_vertices", self.coarse_vertices, self.coarse_vertices >= 3, ">= 3")
         check_option(self, "tolerance", self.tolerance, 0 <= self.tolerance < float("inf"), "a number >= 0")
         check_option(self, "solver", self.solver, self.solver in ("lbfgs", "anderson"), "'lbfgs' or 'anderson'")
 
@@ -140,30 +171,91 @@ class ArapDeformer(Deformer):
         self.rest = rest
         # validates the spec before any factorising
         self.handles, self.targets = edit.handle_targets(rest.vertices, rest.faces)
-        self.on_progress(0, None, "factorising")
+        config = self.config
+        size = rest.n_vertices
+        multires = config.multiresolution == "on" or (config.multiresolution == "auto" and size > MULTIRES_ABOVE)
+        self.results: list[ArapResult] = []
+        self.frame_reports: list[dict] = []
+        self.level, self.level_cached = None, False
         try:
-            self.solver = ArapSolver(rest.vertices, rest.faces, energy=self.config.energy, fixed=self.handles)
+            if not multires:
+                self.on_progress(0, None, "factorising")
+                self.solver = ArapSolver(rest.vertices, rest.faces, energy=config.energy, fixed=self.handles)
+                return
+            self.on_progress(0, None, "coarse level")
+            if config.coarse_vertices >= size:
+                self.level = identity_level(rest)
+            else:
+                params = {"coarse_vertices": config.coarse_vertices, "format": COARSE_FORMAT}
+                arrays, self.level_cached = self.bind_cache.fetch(
+                    "arap-coarse", params, lambda: coarse_level(rest, config.coarse_vertices).arrays()
+                )
+                self.level = CoarseLevel.from_arrays(arrays)
+            self.on_progress(0, None, f"factorising the coarse level ({self.level.coarse.n_vertices} vertices)")
+            self.multires = MultiresArap(self.level, rest, self.handles, energy=config.energy)
         except NerfEditError as exc:
             raise NerfEditError(f"{edit.source}: handles: {exc}") from exc
-        self.results: list[ArapResult] = []
+        self.coarse_targets = self.multires.coarse_targets(self.targets)
 
     def deform(self) -> np.ndarray:
-        """Solve every frame, warm-starting from the previous one; ``results`` keeps each frame's statistics.
-        Progress: ``max_iterations`` units per frame, one per iteration (a frame that converges jumps to its end)."""
-        frames, previous, self.results = [], None, []
+        """Solve every frame, warm-starting from the previous one; ``results`` keeps each frame's statistics (of the
+        coarse solve on the multiresolution path). Progress: ``max_iterations`` units per frame, one per iteration (a
+        frame that converges jumps to its end)."""
+        frames, previous, self.results, self.frame_reports = [], None, [], []
         per_frame, n = self.config.max_iterations, len(self.targets)
+        options = dict(max_iterations=self.config.max_iterations, tolerance=self.config.tolerance)
+        options["method"] = self.config.solver
         for f, targets in enumerate(self.targets):
             span = Span(self.on_progress, f * per_frame, per_frame, n * per_frame, f"frame {f + 1}/{n}")
-            result = self.solver.solve(
-                targets,
-                initial=previous,
-                max_iterations=self.config.max_iterations,
-                tolerance=self.config.tolerance,
-                method=self.config.solver,
-                callback=span.iterations(),
-            )
+            if self.level is None:
+                result = self.solver.solve(targets, initial=previous, callback=span.iterations(), **options)
+                positions = result.vertices
+                self.frame_reports.append(self._frame_report(result))
+            else:
+                start, coarse_targets = previous, self.coarse_targets[f]
+                rotation, shift, misfit = rigid_fit(self.rest.vertices[self.handles], targets)
+                if misfit <= RIGID_BELOW * self.rest.bbox_diagonal:  # a rigid frame: its minimum is that motion
+                    start = self.level.coarse.vertices @ rotation.T + shift
+                    coarse_targets = start[self.multires.fixed]
+                result = self.multires.solve(coarse_targets, initial=start, callback=span.iterations(), **options)
+                positions = self.multires.fine(result.vertices)
+                stray = ~self.rest.referenced()
+                positions[stray] = self.rest.vertices[stray]  # in no face: as the direct solve leaves them
+                gap = np.linalg.norm(positions[self.handles] - targets, axis=1).max(initial=0.0)
+                positions[self.handles] = targets
+                self.frame_reports.append(self._frame_report(result, gap / self.rest.bbox_diagonal))
             span.end(f"{result.iterations} iteration{'s' * (result.iterations != 1)}")
             self.results.append(result)
-            frames.append(result.vertices)
+            frames.append(positions)
             previous = result.vertices
         return np.stack(frames)
+
+    @staticmethod
+    def _frame_report(result: ArapResult, handle_gap: float | None = None) -> dict:
+        report = {"iterations": result.iterations, "energy": result.energies[-1], "converged": result.converged}
+        if handle_gap is not None:
+            report["handle_gap"] = handle_gap
+        return report
+
+    def report(self) -> dict:
+        """``path`` (``direct`` or ``multiresolution``), ``threshold_vertices`` (:data:`MULTIRES_ABOVE`), per frame
+        the solve's ``iterations``, ``energy`` (ARAP energy of the solved level), ``converged``; multiresolution
+        adds ``coarse`` (``vertices``, ``faces``, ``handles``: its fixed vertices, ``cached``: read from the bind
+        cache), ``detail_mean`` / ``detail_max`` (distance of the fine vertices to the coarse surface) and per frame
+        ``handle_gap`` (the largest distance of a carried handle vertex to its target before it is placed there),
+        distances relative to the rest bbox diagonal."""
+        report = {
+            "path": "direct" if self.level is None else "multiresolution",
+            "threshold_vertices": MULTIRES_ABOVE,
+            "per_frame": self.frame_reports,
+        }
+        if self.level is not None:
+            coarse = self.level.coarse
+            report["coarse"] = {
+                "vertices": coarse.n_vertices,
+                "faces": len(coarse.faces),
+                "handles": len(self.multires.fixed),
+                "cached": self.level_cached,
+            }
+            report["detail_mean"], report["detail_max"] = (float(x) for x in self.level.detail)
+        return report

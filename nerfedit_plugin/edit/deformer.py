@@ -11,6 +11,10 @@ from __future__ import annotations
 import abc
 import dataclasses
 import hashlib
+import json
+import os
+import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Literal
 
@@ -20,6 +24,7 @@ from nerfedit_plugin.config import InstantiateConfig
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.io.atomic import atomic_path
 from nerfedit_plugin.timing import Progress, no_progress
 
 if TYPE_CHECKING:
@@ -44,6 +49,46 @@ class Overlay:
     """``wire``: edges in the overlay colour; ``surface``: shaded triangles, in the meshes' vertex colours if any."""
 
 
+class BindCache:
+    """What a deformer binds per rest mesh (a coarse level, weights, a binding), stored by content key.
+
+    ``directory`` (None: nothing is stored, every :meth:`fetch` builds) holds one ``bind-<kind>-<key>.npz`` per
+    entry, ``key`` the sha256 of ``kind``, the rest mesh's :func:`mesh_digest` ``digest`` and the JSON of the
+    entry's parameters. The edit job gives each deformer the cache of its rest mesh, beside the proxy cache.
+    """
+
+    def __init__(self, directory: str | os.PathLike | None = None, digest: str = "") -> None:
+        self.directory = None if directory is None else Path(directory)
+        self.digest = digest
+
+    def key(self, kind: str, params: dict) -> str:
+        """→ hex sha256 of ``kind``, the mesh digest and ``params`` (JSON-able) sorted by key."""
+        text = json.dumps({"kind": kind, "mesh": self.digest, "params": params}, sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def fetch(
+        self, kind: str, params: dict, build: Callable[[], dict[str, np.ndarray]]
+    ) -> tuple[dict[str, np.ndarray], bool]:
+        """``(arrays, hit)``: the entry of ``kind`` with ``params`` (``name → array``, no object arrays) if stored and
+        readable, else ``build()``, stored (written atomically) and returned. An unreadable entry is rebuilt with a
+        warning."""
+        if self.directory is None or not self.digest:
+            return build(), False
+        path = self.directory / f"bind-{kind}-{self.key(kind, params)}.npz"
+        if path.is_file():
+            try:
+                with np.load(path, allow_pickle=False) as data:
+                    return {name: data[name] for name in data.files}, True
+            except Exception as exc:  # zipfile, ValueError: not a readable entry
+                warnings.warn(f"{path}: unreadable bind cache entry ({exc}); rebuilding it", stacklevel=2)
+        arrays = build()
+        self.directory.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                np.savez(handle, **arrays)
+        return arrays, False
+
+
 class Deformer(abc.ABC):
     """Deforms a rest surface mesh according to an edit spec; output keeps vertex order and connectivity.
 
@@ -62,6 +107,11 @@ class Deformer(abc.ABC):
     """``self.on_progress(done, total=None, detail="")`` (:class:`~nerfedit_plugin.timing.Progress`): how far a long
     :meth:`bind` or :meth:`deform` is (vertex blocks, solver iterations; ``total`` None for a single long call). The
     edit job sets it on the instance before :meth:`bind`; default: nobody listens. Calling it is optional."""
+
+    bind_cache: BindCache = BindCache()
+    """Where :meth:`bind` may keep what it computes per rest mesh (:meth:`BindCache.fetch`), so that the next edit of
+    the same mesh reads it instead. The edit job sets it on the instance before :meth:`bind` (the proxy cache's
+    folder, keyed by the rest mesh's content); default: nothing is stored."""
 
     def __init__(self, config: DeformerConfig) -> None:
         self.config = config
@@ -90,6 +140,11 @@ class Deformer(abc.ABC):
     def supports_points(cls) -> bool:
         """True when the deformer overrides :meth:`deform_points`."""
         return cls.deform_points is not Deformer.deform_points
+
+    def report(self) -> dict:
+        """What ``report.json`` records of the bound deformer after :meth:`deform` (JSON-able: the method it chose,
+        sizes, accuracy measures), under ``"deformer_report"``. Default: nothing."""
+        return {}
 
     def write_artifacts(self, out_dir: Path) -> list[Path]:
         """Write extra files of a bound deformer into the edit folder ``out_dir`` (cages, weights) and return their

@@ -415,6 +415,29 @@ class ArapSolver:
         x = np.asarray(positions, dtype=np.float64) - self.origin
         return self._local(x, self._penalty(x, constraint_targets))[1]
 
+    def vertex_rotations(self, positions: np.ndarray) -> np.ndarray:
+        """positions (N,3) float64 → (N,3,3) float64: per vertex ``v`` the rotation ``R_v`` maximising
+        ``tr(R_v S_v)``, ``S_v`` the covariance of the edges of the elements at ``v`` (the spokes-and-rims
+        covariance; spokes: the edges at ``v``), so ``x_i − x_j ≈ R_v (p_i − p_j)`` around ``v``. The identity
+        where ``v`` is in no element. With ``spokes_and_rims`` or ``spokes`` these are the local step's rotations."""
+        x = _finite("positions", positions, self.rest.shape) - self.origin
+        pieces = self._scratch()[0]
+        launch(
+            _kernel.piece_covariances, x, self._elements, self._pairs, self._wedges, self._per_corner,
+            self._everything[0], pieces,
+        )  # fmt: skip
+        corners = self._elements.shape[1]
+        owners = self._vertex_corners if self._per_corner else self._vertex_corners // corners
+        n = self.n_vertices
+        covariances, rotations = np.empty((n, 3, 3)), np.empty((n, 3, 3))
+        traces, ill = np.empty(n), np.empty(n, dtype=bool)
+        launch(
+            _kernel.local_step, pieces, self._vertex_start, owners, np.arange(n), covariances, rotations, traces, ill
+        )
+        _refit_ill(covariances, rotations, np.flatnonzero(ill))
+        rotations[np.diff(self._vertex_start) == 0] = np.eye(3)
+        return rotations
+
     def solve(
         self,
         fixed_positions: np.ndarray | None = None,

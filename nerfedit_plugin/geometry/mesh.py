@@ -73,12 +73,18 @@ def cluster_vertices(mesh: SurfaceMesh, cell: float) -> SurfaceMesh:
     """Vertex clustering: the vertices of each occupied grid cell (size ``cell``) merged into their mean, the faces
     whose three corners fall into three different cells kept (a vertex alone in its cell keeps its position bit for
     bit). Deterministic; linear in the mesh but for one sort of the cell keys."""
+    return vertex_clusters(mesh, cell)[0]
+
+
+def vertex_clusters(mesh: SurfaceMesh, cell: float) -> tuple[SurfaceMesh, np.ndarray]:
+    """:func:`cluster_vertices` of ``mesh`` (V vertices) and ``owner (V,) int64``, the clustered vertex each vertex
+    of ``mesh`` merged into."""
     cells, owner, _ = grid_cells(mesh.vertices, cell)
     counts = np.bincount(owner, minlength=len(cells))
     centres = np.stack([np.bincount(owner, mesh.vertices[:, k], len(cells)) for k in range(3)], axis=1)
     faces = owner[mesh.faces]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
-    return SurfaceMesh(centres / counts[:, None], faces)
+    return SurfaceMesh(centres / counts[:, None], faces), owner
 
 
 @dataclass

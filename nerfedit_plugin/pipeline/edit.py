@@ -22,7 +22,7 @@ import numpy as np
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.scene_deformation import SceneDeformation
 from nerfedit_plugin.config import to_plain, write_config
-from nerfedit_plugin.edit.deformer import DeformerConfig, checked_frames, mesh_digest
+from nerfedit_plugin.edit.deformer import BindCache, DeformerConfig, checked_frames, mesh_digest
 from nerfedit_plugin.edit.lift import Lift, LiftConfig, LiftMethod
 from nerfedit_plugin.edit.objects import is_objects_spec, run_objects_edit
 from nerfedit_plugin.edit.proxy import ProxyConfig, TetProxy, cached_proxy, proxy_cache_key, stored_proxy
@@ -37,7 +37,8 @@ from nerfedit_plugin.timing import ProgressListener, Stopwatch, peak_rss_mb
 
 
 def default_cache_dir() -> Path:
-    """``$NERFEDIT_CACHE`` or ``$XDG_CACHE_HOME/nerfedit/proxies`` (``~/.cache/nerfedit/proxies``)."""
+    """``$NERFEDIT_CACHE`` or ``$XDG_CACHE_HOME/nerfedit/proxies`` (``~/.cache/nerfedit/proxies``): the proxy cache,
+    and the deformers' bind cache (:class:`~nerfedit_plugin.edit.deformer.BindCache`, ``bind-*.npz``)."""
     if "NERFEDIT_CACHE" in os.environ:
         return Path(os.environ["NERFEDIT_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "nerfedit" / "proxies"
@@ -233,6 +234,7 @@ def run_edit(
         with clock.stage("bind"):
             model, digest = deformer.setup(), mesh_digest(rest)
             model.on_progress = clock.progress
+            model.bind_cache = BindCache(cache_dir or default_cache_dir(), digest)
             model.bind(rest, spec)
         with clock.stage("deform"):
             frames = checked_frames(model, model.deform(), rest, spec, digest)
@@ -280,6 +282,7 @@ def run_edit(
             "timings_s": clock.seconds,
             "peak_rss_mb": peak_rss_mb(),
             "per_frame": [dataclasses.asdict(r) for r in reports],
+            "deformer_report": model.report(),
             "base": None if base is None else {"folder": str(base.folder.resolve()), "frame": base.frame},
         }
         report["warnings"] = edit_warnings(report)
