@@ -159,6 +159,7 @@ def test_plugins_command_lists_each_builtin_with_its_description(monkeypatch):
     from nerfedit_plugin.fields.mesh_field import MeshFieldConfig
     from nerfedit_plugin.fields.nerf import NerfConfig
     from nerfedit_plugin.fields.neus import NeusConfig
+    from nerfedit_plugin.fields.splats.field import SplatsConfig
 
     piped = Console(file=io.StringIO(), width=40, force_terminal=False)  # not a terminal: rows are not folded to 40
     monkeypatch.setattr(common, "console", piped)
@@ -179,6 +180,7 @@ def test_plugins_command_lists_each_builtin_with_its_description(monkeypatch):
         ("nerfedit.fields", "mesh", "nerfedit_plugin.fields.mesh_field:MeshFieldConfig", MeshFieldConfig),
         ("nerfedit.fields", "nerf", "nerfedit_plugin.fields.nerf:NerfConfig", NerfConfig),
         ("nerfedit.fields", "neus", "nerfedit_plugin.fields.neus:NeusConfig", NeusConfig),
+        ("nerfedit.fields", "splats", "nerfedit_plugin.fields.splats.field:SplatsConfig", SplatsConfig),
     }
     descriptions = {}
     for group, name, target, config in expected:

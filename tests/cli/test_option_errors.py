@@ -142,7 +142,12 @@ def test_configs_validate_when_built_in_python():
         (None, "lift", "nosuch", "lift: expected one of 'tet-arap',"),
         ("deformer_options", "max_iterations", "abc", "deformer_options.max_iterations: expected an integer"),
         ("deformer_options", "energy", "wrong", "deformer_options.energy: expected one of 'spokes_and_rims',"),
-        ("deformer_options", "enrgy", "spokes", "deformer_options.enrgy: unknown key (the options are: energy,"),
+        (
+            "deformer_options",
+            "enrgy",
+            "spokes",
+            "deformer_options.enrgy: unknown key (the options are: coarse_vertices, energy,",
+        ),
         ("lift_options", "constraint_weight", "heavy", "lift_options.constraint_weight: expected a number"),
         ("lift_options", "injective", 1, "lift_options.injective: expected true or false, got 1"),
         ("proxy", "cage_faces", [1], "proxy.cage_faces: expected an integer, got [1]"),
