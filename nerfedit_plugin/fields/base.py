@@ -128,6 +128,16 @@ class Field(torch.nn.Module, metaclass=abc.ABCMeta):
         primitives moved by ``deformation`` (a :class:`~nerfedit_plugin.bending.maps.ForwardMap`) at ``frame``."""
         raise NotImplementedError(f"{type(self).__name__} is rendered by ray marching (rendering = {self.rendering!r})")
 
+    exports: ClassVar[tuple[str, ...]] = ()
+    """File formats (suffixes without the dot, the first the default) :meth:`export` writes the field's primitives in,
+    e.g. ``("ply", "splat")``; empty (the default): the field has no primitives to export."""
+
+    def export(self, path: str | os.PathLike, deformation: Any = None, frame: int = 0) -> dict:
+        """Fields with :attr:`exports`: write the primitives — moved by ``deformation`` (a
+        :class:`~nerfedit_plugin.bending.maps.ForwardMap`) at ``frame``, as :meth:`render` draws them — as a model file
+        at ``path`` (format by suffix), atomically → a JSON-able record of what was written."""
+        raise NotImplementedError(f"{type(self).__name__} has no primitives to export")
+
     def save(self, path: str | os.PathLike, registry: Registry | None = None) -> None:
         """Checkpoint (``field.pt``): backend name, config, scene box and state dict, written atomically
         (format: :mod:`nerfedit_plugin.fields.checkpoint`)."""

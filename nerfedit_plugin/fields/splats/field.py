@@ -7,9 +7,9 @@ training on a dataset is not there yet. The Gaussians live in the checkpoint's s
 imported captures carry far background Gaussians, which a min/max box would let decide the box.
 
 Rendering (:meth:`SplatsField.render`): projection and colours in torch (:mod:`.projection`), compositing by the
-numba rasteriser (:mod:`.rasterize`). A deformation (a :class:`~nerfedit_plugin.bending.maps.ForwardMap`) moves each
-mean ``μ ↦ φ(μ)`` and covariance ``Σ ↦ F Σ Fᵀ`` (``F`` the local deformation gradient); the SH coefficients are not
-rotated yet.
+numba rasteriser (:mod:`.rasterize`). A deformation (a :class:`~nerfedit_plugin.bending.maps.ForwardMap`) moves the
+Gaussians (:func:`.deform.deform_model`: ``μ ↦ φ(μ)``, ``Σ ↦ F Σ Fᵀ``, SH rotated by ``F``'s polar rotation); the
+moved model is drawn as any other, and :meth:`SplatsField.export` writes that same model.
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ import tyro
 
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.fields.splats.deform import DeformReport, deform_model
 from nerfedit_plugin.fields.splats.files import read_splats, write_splats
 from nerfedit_plugin.fields.splats.model import SplatModel
-from nerfedit_plugin.fields.splats.projection import colors, covariances, project, view_matrix
 from nerfedit_plugin.fields.splats.rasterize import RasterStats, project_gaussians, rasterize
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 
@@ -49,6 +49,9 @@ class SplatsConfig(FieldConfig):
     rasterize_mode: Literal["classic", "antialiased"] = "classic"
     """``classic``: 3DGS's rasterisation; ``antialiased``: opacities scaled by √(det(Σ₂ − 0.3 I) / det Σ₂)
     (Mip-Splatting's 2D filter) — the mode the model was trained with (a PLY does not record it)."""
+    split_growth: float | None = None
+    """Under a deformation, split each Gaussian whose anisotropy (longest / shortest axis) grows by more than this
+    factor into up to 8 along its stretched axis (the needle remedy); default: never split."""
 
     def __post_init__(self) -> None:
         check_option(self, "box_percentile", self.box_percentile, 0 <= self.box_percentile < 50, "in [0, 50)")
@@ -57,6 +60,8 @@ class SplatsConfig(FieldConfig):
             self, "rasterize_mode", self.rasterize_mode, self.rasterize_mode in ("classic", "antialiased"),
             "'classic' or 'antialiased'",
         )  # fmt: skip
+        if self.split_growth is not None:
+            check_option(self, "split_growth", self.split_growth, 1 <= self.split_growth < math.inf, "a number >= 1")
 
 
 class SplatsField(Field):
@@ -67,6 +72,7 @@ class SplatsField(Field):
     kind: ClassVar[str] = "density"
     rendering: ClassVar[str] = "primitives"
     sources: ClassVar[frozenset[str]] = frozenset({"model"})
+    exports: ClassVar[tuple[str, ...]] = ("ply", "splat")
 
     def __init__(self, config: SplatsConfig, scene_bbox: torch.Tensor) -> None:
         super().__init__(config, scene_bbox)
@@ -77,6 +83,7 @@ class SplatsField(Field):
         self.sh = torch.nn.Parameter(torch.zeros(0, 1, 3))
         self.last_stats = RasterStats()
         """Counts and stage times of the last :meth:`render`."""
+        self._deformed: tuple | None = None  # (key, (model, report)) of :meth:`deformed`
 
     # ---- building --------------------------------------------------------------------------------------------------
     @classmethod
@@ -98,10 +105,6 @@ class SplatsField(Field):
     def to_model(self) -> SplatModel:
         """The Gaussians as a :class:`SplatModel` (float32 numpy)."""
         return SplatModel(*(getattr(self, name).detach().cpu().numpy().copy() for name in PARAMETERS))
-
-    def write(self, path: str | Path) -> None:
-        """Write the Gaussians as a splat file (``.splat`` by suffix, else the INRIA PLY)."""
-        write_splats(self.to_model(), path)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
         """Adopt the checkpoint's parameter shapes (an empty field loads any model), then load as usual."""
@@ -140,31 +143,34 @@ class SplatsField(Field):
         intrinsics = tuple(float(getattr(cameras, k)[index]) for k in ("fx", "fy", "cx", "cy"))
         size = (cameras.width, cameras.height)
         antialiased = self.config.rasterize_mode == "antialiased"
-        if deformation is None:
-            arrays = (getattr(self, name).detach().cpu().numpy() for name in PARAMETERS)
-            projected = project_gaussians(*arrays, c2w.numpy(), intrinsics, *size, antialiased)
-        else:
-            projected = self._project_moved(deformation, frame, c2w, intrinsics, size, antialiased)
+        model = self.to_model() if deformation is None else self.deformed(deformation, frame)[0]
+        projected = project_gaussians(*model.arrays(), c2w.numpy(), intrinsics, *size, antialiased)
         stats.seconds["project"] = time.perf_counter() - start
         background = tuple(getattr(config, "background", (1.0, 1.0, 1.0)))
         image, _ = rasterize(*projected, *size, background, stats)
         self.last_stats = stats
         return image.clamp(0.0, 1.0).to(self.scene_bbox.device)
 
-    def _project_moved(self, deformation, frame, c2w, intrinsics, size, antialiased) -> tuple[torch.Tensor, ...]:
-        """The arguments of :func:`rasterize` for the Gaussians moved by the forward map ``deformation`` at
-        ``frame``: ``μ ↦ φ(μ)``, ``Σ ↦ F Σ Fᵀ`` (the torch path of :mod:`.projection`)."""
-        means = self.means.detach().double().cpu()
-        covars = covariances(self.quats.detach().double().cpu(), self.log_scales.detach().double().cpu())
-        moved = deformation.to_deformed(means.float(), frame)
-        gradient = moved.gradient.double().cpu()
-        means, covars = moved.points.double().cpu(), gradient @ covars @ gradient.transpose(-1, -2)
-        p = project(means, covars, *view_matrix(c2w), intrinsics, *size)
-        opacity = torch.sigmoid(self.opacities.detach().double().cpu())
-        if antialiased:
-            opacity = opacity * p.compensation
-        rgb = colors(self.sh.detach().double().cpu(), means, c2w[:3, 3])
-        return p.means2d, p.conics, torch.diagonal(p.covars2d, dim1=-2, dim2=-1), rgb, opacity, p.depths
+    def deformed(self, deformation: Any, frame: int = 0) -> tuple[SplatModel, DeformReport]:
+        """The model moved by the forward map ``deformation`` at ``frame`` (:func:`.deform.deform_model`, splitting
+        by the config's ``split_growth``) and its report; the last result is kept for the next camera of the frame."""
+        key = (deformation, frame, self.config.split_growth, id(self.means), self.means._version)
+        if self._deformed is None or self._deformed[0] != key:
+            self._deformed = None  # the old model is freed before the new one is made
+            moved = deform_model(self.to_model(), deformation, frame, split_growth=self.config.split_growth)
+            self._deformed = (key, moved)
+        return self._deformed[1]
+
+    def export(self, path: str | Path, deformation: Any = None, frame: int = 0) -> dict:
+        """Write the Gaussians — moved by ``deformation`` at ``frame`` when given, exactly as :meth:`render` draws
+        them — as a splat file (``.splat`` by suffix, else the INRIA PLY, float32), atomically → what was written
+        (``gaussians``, and the forward map's report under ``deformation``)."""
+        if deformation is None:
+            write_splats(self.to_model(), path)
+            return {"gaussians": self.n_gaussians}
+        model, report = self.deformed(deformation, frame)
+        write_splats(model, path)
+        return {"gaussians": len(model), "deformation": dataclasses.asdict(report)}
 
 
 def scene_box(means: np.ndarray, percentile: float, padding: float) -> np.ndarray:
