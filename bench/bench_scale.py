@@ -14,7 +14,13 @@ does).
 E ≤ (1 + 10⁻³) E_ref and their CPU time (the run's CPU per iteration × iterations), for each ``--method`` of
 ``ArapSolver.solve`` (level by level, the methods interleaved, so both see the same machine load).
 
-Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver [--method lbfgs anderson]]``
+``--accuracy`` instead compares the deformer's result (its defaults, which take the multiresolution path above
+``deformers.arap.MULTIRES_ABOVE`` vertices; the direct solve; the multiresolution path forced at ``--coarse``
+vertices) with the converged direct solve (tolerance 1e-10 from rest, at most 3000 L-BFGS iterations; cached in
+/tmp): mean and max vertex distance in units of the bbox diagonal, the path taken, the coarse size, the folded faces
+and the wall time of bind + deform.
+
+Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver [--method lbfgs anderson] | --accuracy [--coarse N]]``
 """
 
 from __future__ import annotations
@@ -55,6 +61,55 @@ def level_mesh(level: int) -> Path:
         mesh = ms.current_mesh()
         SurfaceMesh(mesh.vertex_matrix().astype(np.float64), mesh.face_matrix().astype(np.int64)).save(path)
     return path
+
+
+def reference_solution(level: int) -> np.ndarray:
+    """The converged direct ARAP solve of the head edit on ``level`` (tolerance 1e-10 from rest), cached in /tmp."""
+    from nerfedit_plugin.edit.spec import load_edit_spec
+    from nerfedit_plugin.geometry.arap import ArapSolver
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    path = Path(f"/tmp/nerfedit_bench_scale_reference_{level}.npy")
+    if not path.exists():
+        mesh = SurfaceMesh.load(level_mesh(level))
+        handles, targets = load_edit_spec(EDIT).handle_targets(mesh.vertices, mesh.faces)
+        solver = ArapSolver(mesh.vertices, mesh.faces, fixed=handles)
+        result = solver.solve(targets[0], max_iterations=3000, tolerance=1e-10, method="lbfgs")
+        np.save(path, result.vertices)
+    return np.load(path)
+
+
+def accuracy_case(level: int, coarse: int) -> None:
+    """The deformer against the converged direct solve on one level: prints a table row per configuration."""
+    from deformers.arap import ArapConfig
+    from nerfedit_plugin.edit.spec import load_edit_spec
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.geometry.normals import face_normals
+
+    mesh = SurfaceMesh.load(level_mesh(level))
+    spec = load_edit_spec(EDIT).in_world(np.eye(4))
+    reference = reference_solution(level)
+    rest_normals = face_normals(mesh.vertices, mesh.faces)
+    configs = {
+        "defaults": ArapConfig(),
+        "direct": ArapConfig(multiresolution="off"),
+        f"multires {coarse}": ArapConfig(multiresolution="on", coarse_vertices=coarse),
+    }
+    for name, config in configs.items():
+        start = time.perf_counter()
+        model = config.setup()
+        model.bind(mesh, spec)
+        deformed = model.deform()[0]
+        seconds = time.perf_counter() - start
+        error = np.linalg.norm(deformed - reference, axis=1) / mesh.bbox_diagonal
+        report = model.report()
+        coarse_size = report.get("coarse", {}).get("vertices", "–")
+        folded = int(np.count_nonzero(np.einsum("ij,ij->i", rest_normals, face_normals(deformed, mesh.faces)) < 0))
+        print(
+            f"| {mesh.n_vertices} | {name} | {report['path']} | {coarse_size} | {error.mean():.2e} | "
+            f"{error.max():.2e} | {folded} | {seconds:.2f} |",
+            flush=True,
+        )
 
 
 def run_case(mesh: str, cache: str) -> None:
@@ -128,11 +183,19 @@ def main() -> None:
     parser.add_argument(
         "--method", nargs="+", default=["lbfgs", "anderson"], choices=["lbfgs", "anderson"], help="with --solver"
     )
+    parser.add_argument("--accuracy", action="store_true", help="against the converged direct solve (levels 0-2)")
+    parser.add_argument("--coarse", type=int, default=10_000, help="with --accuracy: coarse vertices of the forced row")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--cache", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case:
         run_case(args.case, args.cache)
+        return
+    if args.accuracy:
+        print("| vertices | config | path | coarse vertices | mean / diag | max / diag | folded | bind + deform s |")
+        print("|" + "---|" * 8)
+        for level in args.levels:
+            accuracy_case(level, args.coarse)
         return
     if args.solver:
         print(

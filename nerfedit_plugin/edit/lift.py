@@ -81,6 +81,10 @@ class LiftConfig:
     refine_rounds: int = 3
     """tet-arap: refine-and-lift-again rounds at most (each bisects the marked tets up to :data:`MAX_BISECTIONS`
     times); 0 keeps the proxy as built."""
+    max_constraints: int = 100_000
+    """Surface vertices (a count) whose barycentric constraints the lift fits at most: a surface with more is
+    subsampled, evenly over the proxy tets that hold it and at least one vertex per such tet
+    (:func:`surface_sample`); the reported residuals still cover every surface vertex. 0: every surface vertex."""
 
     def __post_init__(self) -> None:
         weight, iterations, tolerance = self.constraint_weight, self.max_iterations, self.tolerance
@@ -91,6 +95,7 @@ class LiftConfig:
         newton, stop = self.injective_max_iterations, self.injective_tolerance
         check_option(self, "injective_max_iterations", newton, newton >= 1, "a positive integer")
         check_option(self, "injective_tolerance", stop, 0 <= stop < np.inf, "a number >= 0")
+        check_option(self, "max_constraints", self.max_constraints, self.max_constraints >= 0, "an integer >= 0")
         target, rounds = self.residual_target, self.refine_rounds
         check_option(self, "residual_target", target, 0 < target < np.inf, "a positive number")
         check_option(self, "refine_rounds", rounds, rounds >= 0, "an integer >= 0")
@@ -131,6 +136,28 @@ def closest_point_displacements(rest: SurfaceMesh, moved: np.ndarray, points: np
     return np.einsum("mk,mkd->md", bary, (moved - rest.vertices)[tri])
 
 
+def surface_sample(tets_of: np.ndarray, indices: np.ndarray, budget: int) -> np.ndarray:
+    """tets_of (V,) int64 the proxy tet holding each surface vertex, indices (S,) int64 of the surface vertices,
+    budget → the sorted indices kept: all when ``S ≤ budget`` or ``budget`` is 0; else up to ``k`` vertices of each
+    tet that holds some (every ``⌊count / k⌋``-th in index order), ``k`` the largest that keeps the total within the
+    budget and at least 1 — every occupied tet keeps a constraint, so the sample is at most ``max(budget, occupied
+    tets)`` whatever the surface's size."""
+    if budget == 0 or len(indices) <= budget:
+        return indices
+    tets = tets_of[indices]
+    order = np.lexsort((indices, tets))
+    first = np.flatnonzero(np.r_[True, tets[order][1:] != tets[order][:-1]])
+    counts = np.diff(np.r_[first, len(order)])
+    low, high = 1, int(counts.max())
+    while low < high:  # the largest k with Σ min(count, k) ≤ budget
+        k = (low + high + 1) // 2
+        low, high = (k, high) if np.minimum(counts, k).sum() <= budget else (low, k - 1)
+    rank = np.arange(len(order)) - np.repeat(first, counts)
+    step = np.repeat(np.maximum(counts // low, 1), counts)
+    keep = (rank % step == 0) & (rank // step < low)
+    return np.sort(indices[order[keep]])
+
+
 class Lift:
     """Binds a lift method to a proxy once (factorisations, trees), then lifts frames."""
 
@@ -155,9 +182,12 @@ class Lift:
         self.rest_normals = face_normals(rest.vertices, rest.faces)
         self.scale = rest.bbox_diagonal
         """The rest surface's bbox diagonal: the unit of the reports' distances."""
-        self.surface = np.flatnonzero(rest.referenced())
-        """The surface vertices (those of a face): the constraints and residuals of the lift (a stray vertex,
-        which no deformer is bound to move with its neighbours, would pull the proxy apart)."""
+        self.everywhere = np.flatnonzero(rest.referenced())
+        """The surface vertices (those of a face): the residuals reported (a stray vertex, which no deformer is bound
+        to move with its neighbours, would pull the proxy apart)."""
+        self.surface = surface_sample(proxy.embed_tets, self.everywhere, config.max_constraints)
+        """The surface vertices constraining the lift (all of :attr:`everywhere`, or a subsample of at most about
+        ``config.max_constraints``): its constraints, refinement and crossing checks."""
         if method == "direct" and (deformer is None or not deformer.supports_points()):
             name = type(deformer).__name__ if deformer is not None else "no deformer"
             raise NerfEditError(f"--lift direct: {name} has no deform_points (use tet-arap)")
@@ -340,10 +370,20 @@ class Lift:
                 self._bind(proxy)
                 break
             misses += (need > 0) & ~improved  # PATIENCE misses: not the fit's error there, no finer proxy helps
+        if len(self.surface) < len(self.everywhere):  # fitted on a subsample: report every surface vertex
+            reports = [self._everywhere(*args) for args in zip(reports, lifted, frames)]
         if self.method == "tet-arap":
             reports = [self._check_crossings(*args) for args in zip(reports, lifted, frames)]
         self.progress(total, total, f"{len(frames)} frame(s), {self.refinements} bisection(s)")
         return lifted, reports
+
+    def _everywhere(self, report: FrameReport, deformed: np.ndarray, surface: np.ndarray) -> FrameReport:
+        """The report of a frame (lifted proxy (N,3), surface (V,3)) with its residuals over every surface vertex."""
+        embedding = self.proxy.embedding_matrix()[self.everywhere]
+        residual = np.linalg.norm(embedding @ deformed - surface[self.everywhere], axis=1) / self.scale
+        return dataclasses.replace(
+            report, residual_max=float(residual.max()), residual_rms=float(np.sqrt(np.mean(residual**2)))
+        )
 
     def _check_crossings(self, report: FrameReport, deformed: np.ndarray, surface: np.ndarray) -> FrameReport:
         """The report of a frame (lifted proxy (N,3), surface (V,3)) with ``crossing_surface_faces`` counted if its

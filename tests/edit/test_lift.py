@@ -457,3 +457,50 @@ def test_stray_vertices_do_not_pull_the_lift(capsule, capsule_proxy):
     lifted, (report,) = lift(frame[None])
     assert lift.refinements == 0 and report.residual_max < 1e-6
     np.testing.assert_allclose(lifted[0], proxy.vertices @ ROT.T + SHIFT, atol=1e-6)
+
+
+def test_surface_sample_keeps_every_occupied_tet_within_the_budget():
+    """Against a brute-force count per tet: the sample is sorted and distinct, holds min(count, k) vertices of each
+    tet for the largest k whose total fits the budget (at least one per occupied tet), and is every vertex at or under
+    the budget or with budget 0."""
+    from nerfedit_plugin.edit.lift import surface_sample
+
+    rng = np.random.default_rng(0)
+    tets_of = rng.integers(0, 300, size=20_000) ** 2 // 300  # uneven: a few tets hold many vertices
+    indices = np.arange(0, 20_000, 2)
+    occupied = np.bincount(tets_of[indices])
+    for budget in (100, 1000, 4000):
+        kept = surface_sample(tets_of, indices, budget)
+        assert np.all(np.diff(kept) > 0) and np.isin(kept, indices).all()
+        k = max([1] + [k for k in range(1, occupied.max() + 1) if np.minimum(occupied, k).sum() <= budget])
+        np.testing.assert_array_equal(np.bincount(tets_of[kept], minlength=len(occupied)), np.minimum(occupied, k))
+        assert len(kept) <= max(budget, np.count_nonzero(occupied))
+    np.testing.assert_array_equal(surface_sample(tets_of, indices, len(indices)), indices)
+    np.testing.assert_array_equal(surface_sample(tets_of, indices, 0), indices)
+
+
+def test_a_lift_on_a_surface_sample_fits_the_whole_surface_and_reports_it(capsule, capsule_proxy):
+    """The capsule subdivided twice (midpoints: the same surface, 16× the faces) with a sample of a quarter of its
+    vertices (still ~2.5 per proxy vertex): a rigid motion is lifted exactly; a bend lifts as the lift of every
+    vertex does, and the residuals reported are those of every surface vertex (recomputed here)."""
+    import trimesh
+
+    from nerfedit_plugin.edit.lift import LiftConfig
+    from nerfedit_plugin.edit.proxy import proxy_from_tets
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    fine = trimesh.Trimesh(capsule.vertices, capsule.faces, process=False).subdivide().subdivide()
+    fine = SurfaceMesh(np.asarray(fine.vertices), np.asarray(fine.faces))
+    proxy = proxy_from_tets(capsule_proxy.vertices, capsule_proxy.tets, fine, "test")
+    budget = fine.n_vertices // 4
+    sampled = Lift(proxy, fine, config=LiftConfig(max_constraints=budget, refine_rounds=0))
+    assert len(sampled.surface) <= budget < len(sampled.everywhere) == fine.n_vertices
+    lifted, _ = sampled((fine.vertices @ ROT.T + SHIFT)[None])
+    np.testing.assert_allclose(lifted[0], proxy.vertices @ ROT.T + SHIFT, atol=1e-5 * fine.bbox_diagonal)
+    frame = bend(fine.vertices)
+    lifted, (report,) = sampled(frame[None])
+    full, (expected,) = Lift(proxy, fine, config=LiftConfig(refine_rounds=0))(frame[None])
+    residual = np.linalg.norm(proxy.embedding_matrix() @ lifted[0] - frame, axis=1) / fine.bbox_diagonal
+    assert report.residual_max == pytest.approx(residual.max(), rel=1e-9)
+    assert report.residual_max < 2 * expected.residual_max < 2e-3
+    assert np.abs(lifted[0] - full[0]).max() < 0.01 * fine.bbox_diagonal
