@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {
     "extract": "extract",
     "edit": "edit",
     "render": "render",
+    "export": "export",
     "eval": "evaluate",
     "view": "view",
     "generate": "generate",
