@@ -121,6 +121,8 @@ class Transforms:
     """Per frame: the lens when it has distortion, else None (empty: no frame has any)."""
     mask_paths: list[Path | None] = field(default_factory=list, repr=False)
     """Per frame: its mask image (0 = ignore the pixel) or None (empty: no frame has one)."""
+    points: np.ndarray | None = field(default=None, repr=False)
+    """A capture's sparse points ``(P,3)`` in the world frame (COLMAP ``points3D``, ``ply_file_path``), or None."""
 
 
 def transforms_file(path: str | os.PathLike, split: str | None = None) -> Path:
@@ -186,8 +188,11 @@ def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transf
         points = None if points is None else apply(np.linalg.inv(applied), points)
         meta = _normalized(file, meta, cameras, points, applied)
         cameras = cameras.transformed(meta["source_transform"])
+        points = None if points is None else apply(np.asarray(meta["source_transform"]), points)
+    else:
+        points = None
     chosen = _split_indices(file, meta, frames, split)
-    return _select(Transforms(cameras, paths, file, meta, lenses, masks), chosen)
+    return _select(Transforms(cameras, paths, file, meta, lenses, masks, points), chosen)
 
 
 def is_capture(transforms: Transforms) -> bool:
@@ -204,7 +209,10 @@ def _colmap_transforms(model: ColmapModel, split: str | None) -> Transforms:
     cameras = Cameras(torch.from_numpy(model.c2w), fx, fy, cx, cy, *model.sizes[0])
     meta = _normalized(model.sparse, {}, cameras, model.points, np.eye(4))
     frames = [{"file_path": p.name} for p in model.image_paths]
-    transforms = Transforms(cameras.transformed(meta["source_transform"]), model.image_paths, model.sparse, meta)
+    points = apply(np.asarray(meta["source_transform"]), model.points) if len(model.points) else None
+    transforms = Transforms(
+        cameras.transformed(meta["source_transform"]), model.image_paths, model.sparse, meta, points=points
+    )
     transforms.lenses = [n if n.distorted else None for n in model.lenses]
     return _select(transforms, _split_indices(model.sparse, meta, frames, split, interval=True))
 
@@ -229,6 +237,7 @@ def _select(transforms: Transforms, chosen: list[int]) -> Transforms:
         transforms.meta,
         pick(transforms.lenses),
         pick(transforms.mask_paths),
+        transforms.points,
     )
 
 
@@ -525,6 +534,8 @@ class Dataset:
     mask: torch.Tensor | None = None
     """``(C,H,W)`` bool: the pixels to train on (a capture's masks, pixels that undistortion left without a source);
     None: all of them."""
+    points: torch.Tensor | None = None
+    """A capture's sparse points ``(P,3)`` float32 in the world frame (the start of primitive fields), or None."""
 
     def __len__(self) -> int:
         return len(self.cameras)
@@ -547,6 +558,7 @@ class Dataset:
             self.scene_bbox.to(device),
             alpha,
             mask,
+            None if self.points is None else self.points.to(device),
         )
 
 
@@ -594,6 +606,7 @@ def load_dataset(
         scene_bbox=bbox,
         alpha=torch.from_numpy(np.stack(alphas)) if any_alpha else None,
         mask=None if all(v.all() for v in valid) else torch.from_numpy(np.stack(valid)),
+        points=None if transforms.points is None else torch.from_numpy(transforms.points.astype(np.float32)),
     )
 
 

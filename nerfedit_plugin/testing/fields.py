@@ -71,10 +71,11 @@ def write_coloured_mesh(folder: Path) -> Path:
 
 def build_field(config: FieldConfig, model: Callable[[Path], Path] | None = None) -> Field:
     """The field the kit tests: ``config.setup(scene_bbox=BOX)`` (the backend's initial state) for a field made from
-    a dataset, else ``from_file`` of the model file ``model(folder)`` writes into a temporary folder and returns
-    (default :func:`write_coloured_mesh`). The model should lie in :data:`BOX` and be visible from outside it."""
+    a dataset (unless it is made from model files too and ``model`` is given), else ``from_file`` of the model file
+    ``model(folder)`` writes into a temporary folder and returns (default :func:`write_coloured_mesh`). The model
+    should lie in :data:`BOX` and be visible from outside it."""
     target = config._target
-    if "dataset" in target.sources:
+    if "dataset" in target.sources and (model is None or "model" not in target.sources):
         return config.setup(scene_bbox=BOX.clone())
     with tempfile.TemporaryDirectory() as folder:
         path = (write_coloured_mesh if model is None else model)(Path(folder))

@@ -117,33 +117,36 @@ def train(
     callback: Callable[[int], bool] | None = None,
     cos_anneal: Callable[[int], float] | None = None,
     eval_dataset: Any = None,
+    loss: Callable[[int], tuple[torch.Tensor, torch.Tensor]] | None = None,
+    after_step: Callable[[int, torch.optim.Optimizer], None] | None = None,
 ) -> dict:
     """Optimise ``field`` on ``dataset`` (a :class:`nerfedit_plugin.data.datasets.Dataset`) and return the log.
 
-    ``param_groups()``: torch optimiser groups with their initial ``lr`` (default: all parameters at 1e-2);
+    ``param_groups()``: torch optimiser groups with their initial ``lr`` (default: all parameters at 1e-2) and
+    optionally their own ``lr_final_factor`` (else the config's; 1 keeps a rate constant);
     ``regularizer(step)``: extra loss added to the colour MSE; ``callback(step)``: called after every step (e.g.
     occupancy-grid updates); it returns True when it replaced parameters (e.g. a grid refined coarse to fine),
     and the optimiser is then rebuilt from ``param_groups()`` keeping the moments of unchanged parameters.
+    ``loss(step)``: the step's ``(loss, colour MSE)`` computed by the field itself (e.g. whole images drawn by a
+    rasterising field), instead of a batch of rays through the shared renderer; ``after_step(step, optimizer)``:
+    called after every optimiser step, before ``callback``; it may replace parameters together with their state in
+    ``optimizer`` (e.g. densification and pruning of primitives).
     ``cos_anneal(step)``: the renderer's NeuS cosine-annealing ratio for the training batch of ``step`` (sdf fields;
     default 1, the unbiased estimate — evaluation always uses 1).
     The log holds ``step``, ``seconds``, ``loss``, ``psnr`` (batch values every ``log_every`` steps), ``eval``
     (list of ``(seconds, psnr)`` on ``eval_dataset`` — at 0 s, every ``eval_every_seconds`` and at the end),
     ``steps`` and ``train_seconds`` (totals).
     """
-    from nerfedit_plugin.render.renderer import RenderConfig, render_rays
+    from nerfedit_plugin.render.renderer import RenderConfig
 
-    device = field.scene_bbox.device
     generator = torch.Generator(device="cpu").manual_seed(config.seed)
     torch.manual_seed(config.seed)
     render_config = RenderConfig(n_samples=config.n_samples, background=tuple(dataset.background))
-    origins, directions = generate_rays(dataset.cameras.to(device))
-    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
-    colors = dataset.images.to(device).reshape(-1, 3)
-    pool = _ray_pool(dataset, config.foreground_margin).to(device)
+    if loss is None:
+        loss = _ray_loss(field, dataset, config, render_config, generator, cos_anneal)
     if param_groups is None:
         param_groups = lambda: [{"params": list(field.parameters()), "lr": 1e-2}]  # noqa: E731
     optimizer = _adam(param_groups())
-    initial_lr = [group["lr"] for group in optimizer.param_groups]
     log: dict = {"step": [], "seconds": [], "loss": [], "psnr": [], "eval": []}
 
     def run_eval(seconds: float) -> None:
@@ -163,21 +166,17 @@ def train(
             progress = max(step / config.max_steps, seconds / config.max_seconds)
             if config.lr_decay_steps:
                 progress = min(1.0, max(progress, step / config.lr_decay_steps))
-            for group, lr in zip(optimizer.param_groups, initial_lr):
-                group["lr"] = lr * config.lr_final_factor**progress
-            batch = pool[torch.randint(0, len(pool), (config.batch_rays,), generator=generator).to(device)]
-            step_config = (
-                render_config if cos_anneal is None else dataclasses.replace(render_config, cos_anneal=cos_anneal(step))
-            )
-            out = render_rays(field, origins[batch], directions[batch], step_config, stratified=True)
-            mse = torch.mean((out.rgb - colors[batch]) ** 2)
-            loss = mse
+            for group in optimizer.param_groups:
+                group["lr"] = group["initial_lr"] * group.get("lr_final_factor", config.lr_final_factor) ** progress
+            total, mse = loss(step)
             extra = regularizer(step) if regularizer is not None else None
             if extra is not None:
-                loss = loss + extra
+                total = total + extra
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
+            total.backward()
             optimizer.step()
+            if after_step is not None:
+                after_step(step, optimizer)
             if callback is not None and callback(step):
                 optimizer = _adam(param_groups(), optimizer)
             step += 1
@@ -185,7 +184,7 @@ def train(
             if step % config.log_every == 0 or step == 1:
                 log["step"].append(step)
                 log["seconds"].append(seconds)
-                log["loss"].append(float(loss.detach()))
+                log["loss"].append(float(total.detach()))
                 log["psnr"].append(psnr_from_mse(mse.detach()))
                 done = max(step / config.max_steps, seconds / config.max_seconds)
                 bar.update(done, log["loss"][-1], log["psnr"][-1], log["eval"][-1][1] if log["eval"] else None)
@@ -196,11 +195,34 @@ def train(
                 checkpoint(field, {"steps": step, "train_seconds": seconds})
                 next_checkpoint = seconds + config.checkpoint_every_seconds
         if step:
-            bar.update(1.0, float(loss.detach()), psnr_from_mse(mse.detach()), None)
+            bar.update(1.0, float(total.detach()), psnr_from_mse(mse.detach()), None)
     run_eval(seconds)
     field.eval()
     log["steps"], log["train_seconds"] = step, seconds
     return log
+
+
+def _ray_loss(field, dataset, config: TrainerConfig, render_config, generator, cos_anneal) -> Callable[[int], tuple]:
+    """The default step loss: ``batch_rays`` pixels drawn from the ray pool, rendered by the shared renderer
+    (stratified), their colour MSE (as both the loss and the MSE)."""
+    from nerfedit_plugin.render.renderer import render_rays
+
+    device = field.scene_bbox.device
+    origins, directions = generate_rays(dataset.cameras.to(device))
+    origins, directions = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    colors = dataset.images.to(device).reshape(-1, 3)
+    pool = _ray_pool(dataset, config.foreground_margin).to(device)
+
+    def loss(step: int) -> tuple[torch.Tensor, torch.Tensor]:
+        batch = pool[torch.randint(0, len(pool), (config.batch_rays,), generator=generator).to(device)]
+        step_config = (
+            render_config if cos_anneal is None else dataclasses.replace(render_config, cos_anneal=cos_anneal(step))
+        )
+        out = render_rays(field, origins[batch], directions[batch], step_config, stratified=True)
+        mse = torch.mean((out.rgb - colors[batch]) ** 2)
+        return mse, mse
+
+    return loss
 
 
 def _clock(kind: str) -> Callable[[], float]:
@@ -225,8 +247,11 @@ def _ray_pool(dataset: Any, margin: int) -> torch.Tensor:
 
 
 def _adam(groups: Iterable[dict], previous: torch.optim.Optimizer | None = None) -> torch.optim.Optimizer:
-    """Adam (fused kernel) over ``groups``; moments of parameters already in ``previous`` carry over."""
+    """Adam (fused kernel) over ``groups`` (each remembers its ``lr`` as ``initial_lr``, the start of its decay);
+    moments of parameters already in ``previous`` carry over."""
     optimizer = torch.optim.Adam(list(groups), betas=(0.9, 0.99), eps=1e-15, fused=True)
+    for group in optimizer.param_groups:
+        group.setdefault("initial_lr", group["lr"])
     if previous is not None:
         for p, state in previous.state.items():
             if any(p is q for group in optimizer.param_groups for q in group["params"]):

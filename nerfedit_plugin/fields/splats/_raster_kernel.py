@@ -49,10 +49,11 @@ def composite(
     min_transmittance,
     image,
     transmittance,
-    count,
+    last,
 ):
     """Front-to-back alpha compositing of each tile's depth-sorted list into ``image (H,W,3)`` (colour before the
-    background), ``transmittance (H,W)`` and ``count (H,W)`` (Gaussians composited). At pixel centre ``p``:
+    background), ``transmittance (H,W)`` and ``last (H,W)``: one past the position in ``ids`` of the last Gaussian
+    composited (the tile's first position when none was; the backward pass starts there). At pixel centre ``p``:
     ``α = min(max_alpha, o exp(−½ dᵀ Σ₂⁻¹ d))``, ``d = p − μ₂``, skipped below ``min_alpha``; a pixel stops before the
     Gaussian that would take its transmittance below ``min_transmittance``. Each Gaussian visits only its pixel
     rectangle ``pixel_rect[g] = (x0, y0, x1, y1)`` (inclusive) within the tile."""
@@ -64,7 +65,7 @@ def composite(
         y1 = min(y0 + tile, height)
         T = np.ones((tile, tile), dtype=np.float32)
         C = np.zeros((tile, tile, 3), dtype=np.float32)
-        n = np.zeros((tile, tile), dtype=np.int32)
+        n = np.full((tile, tile), offsets[t], dtype=np.int64)
         done = np.zeros((tile, tile), dtype=np.bool_)
         remaining = (x1 - x0) * (y1 - y0)
         for k in range(offsets[t], offsets[t + 1]):
@@ -97,14 +98,14 @@ def composite(
                     C[i, j, 1] += w * colors[g, 1]
                     C[i, j, 2] += w * colors[g, 2]
                     T[i, j] = next_t
-                    n[i, j] += 1
+                    n[i, j] = k + 1
         for i in range(y1 - y0):
             for j in range(x1 - x0):
                 image[y0 + i, x0 + j, 0] = C[i, j, 0]
                 image[y0 + i, x0 + j, 1] = C[i, j, 1]
                 image[y0 + i, x0 + j, 2] = C[i, j, 2]
                 transmittance[y0 + i, x0 + j] = T[i, j]
-                count[y0 + i, x0 + j] = n[i, j]
+                last[y0 + i, x0 + j] = n[i, j]
 
 
 @numba.njit(parallel=True, cache=True)

@@ -1,10 +1,11 @@
 """The ``splats`` field backend: anisotropic 3D Gaussians in the INRIA conventions, drawn by the CPU rasteriser.
 
-A run is made from a splat file (``nerfedit train --field splats --data point_cloud.ply``, or a ``.splat`` file);
-training on a dataset is not there yet. The Gaussians live in the checkpoint's state dict (``means``, ``quats``,
-``log_scales``, ``opacities``, ``sh``): the run's one store of the model. The scene box spans the
-``[p, 100 − p]`` percentiles of the means on each axis (``box_percentile``), grown by ``padding`` × its diagonal:
-imported captures carry far background Gaussians, which a min/max box would let decide the box.
+A run is made from a splat file (``nerfedit train --field splats --data point_cloud.ply``, or a ``.splat`` file) or
+trained on a dataset (:meth:`SplatsField.fit`, the 3DGS recipe of :mod:`.training`). The Gaussians live in the
+checkpoint's state dict (``means``, ``quats``, ``log_scales``, ``opacities``, ``sh``): the run's one store of the
+model. A run made from a file has its scene box span the ``[p, 100 − p]`` percentiles of the means on each axis
+(``box_percentile``), grown by ``padding`` × its diagonal: imported captures carry far background Gaussians, which a
+min/max box would let decide the box (a trained run has the dataset's box).
 
 Rendering (:meth:`SplatsField.render`): projection and colours in torch (:mod:`.projection`), compositing by the
 numba rasteriser (:mod:`.rasterize`). A deformation (a :class:`~nerfedit_plugin.bending.maps.ForwardMap`) moves the
@@ -30,7 +31,9 @@ from nerfedit_plugin.fields.splats.deform import DeformReport, deform_model
 from nerfedit_plugin.fields.splats.files import read_splats, write_splats
 from nerfedit_plugin.fields.splats.model import SplatModel
 from nerfedit_plugin.fields.splats.rasterize import RasterStats, project_gaussians, rasterize
+from nerfedit_plugin.fields.splats.training import SplatRecipe
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
+from nerfedit_plugin.training.trainer import TrainerConfig
 
 PARAMETERS = ("means", "quats", "log_scales", "opacities", "sh")
 """The Gaussians' parameters, in :class:`SplatModel` order."""
@@ -38,7 +41,8 @@ PARAMETERS = ("means", "quats", "log_scales", "opacities", "sh")
 
 @dataclasses.dataclass
 class SplatsConfig(FieldConfig):
-    """3D Gaussian splats (INRIA layout) from a PLY or .splat file, rasterised on the CPU."""
+    """3D Gaussian splats (INRIA layout): trained on posed images, or read from a PLY or .splat file; rasterised on
+    the CPU."""
 
     _target: tyro.conf.Suppress[type] = dataclasses.field(default_factory=lambda: SplatsField)
     box_percentile: float = 1.0
@@ -52,6 +56,10 @@ class SplatsConfig(FieldConfig):
     split_growth: float | None = None
     """Under a deformation, split each Gaussian whose anisotropy (longest / shortest axis) grows by more than this
     factor into up to 8 along its stretched axis (the needle remedy); default: never split."""
+    recipe: SplatRecipe = dataclasses.field(default_factory=SplatRecipe)
+    """Training on a dataset: start, learning rates, loss, density control."""
+    train: TrainerConfig = dataclasses.field(default_factory=lambda: TrainerConfig(eval_every_seconds=60.0))
+    """Optimisation budget (``batch_rays`` and ``n_samples`` are unused: a step renders one whole training view)."""
 
     def __post_init__(self) -> None:
         check_option(self, "box_percentile", self.box_percentile, 0 <= self.box_percentile < 50, "in [0, 50)")
@@ -71,7 +79,7 @@ class SplatsField(Field):
 
     kind: ClassVar[str] = "density"
     rendering: ClassVar[str] = "primitives"
-    sources: ClassVar[frozenset[str]] = frozenset({"model"})
+    sources: ClassVar[frozenset[str]] = frozenset({"model", "dataset"})
     exports: ClassVar[tuple[str, ...]] = ("ply", "splat")
 
     def __init__(self, config: SplatsConfig, scene_bbox: torch.Tensor) -> None:
@@ -101,6 +109,20 @@ class SplatsField(Field):
         for name, values in zip(PARAMETERS, model.arrays()):
             setattr(field, name, torch.nn.Parameter(torch.from_numpy(values.copy())))
         return field
+
+    def set_model(self, model: SplatModel) -> None:
+        """Replace the Gaussians by ``model``'s (float32, on the field's device)."""
+        device = self.scene_bbox.device
+        for name, values in zip(PARAMETERS, model.astype(np.float32).arrays()):
+            setattr(self, name, torch.nn.Parameter(torch.from_numpy(values.copy()).to(device)))
+
+    def fit(self, dataset: Any, *, eval_dataset: Any = None, trainer: TrainerConfig | None = None) -> dict:
+        """Train on ``dataset`` from its sparse points (a capture's) or from Gaussians uniform in the scene box, with
+        the 3DGS recipe (:mod:`.training`; ``trainer`` overrides ``config.train``)."""
+        from nerfedit_plugin.fields.splats import training
+
+        points = None if dataset.points is None else dataset.points.double().cpu().numpy()
+        return training.fit(self, dataset, eval_dataset, trainer or self.config.train, points)
 
     def to_model(self) -> SplatModel:
         """The Gaussians as a :class:`SplatModel` (float32 numpy)."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -62,6 +63,83 @@ def pixel_rects(
     return visible, np.concatenate([low, high], 1).astype(np.int32)
 
 
+class Tiles(NamedTuple):
+    """The depth-sorted tile lists of one view: tile ``t`` holds ``ids[offsets[t]:offsets[t + 1]]``; ``rect (N,4)``
+    each Gaussian's pixel box; ``tiles_x`` tiles per row."""
+
+    offsets: np.ndarray
+    ids: np.ndarray
+    rect: np.ndarray
+    tiles_x: int
+
+
+def tile_lists(
+    means2d: np.ndarray,
+    variances: np.ndarray,
+    opacities: np.ndarray,
+    depths: np.ndarray,
+    width: int,
+    height: int,
+    stats: RasterStats,
+) -> Tiles:
+    """Cull (:func:`pixel_rects`), sort by depth (ties by index) and bin into 16×16 tiles by one counting sort."""
+    start = time.perf_counter()
+    visible, rect = pixel_rects(means2d, variances, opacities, depths, width, height)
+    stats.seconds["cull"] = time.perf_counter() - start
+    start = time.perf_counter()
+    index = np.flatnonzero(visible)
+    order = index[np.argsort(depths[index], kind="stable")].astype(np.int64)
+    stats.seconds["sort"] = time.perf_counter() - start
+    start = time.perf_counter()
+    tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
+    offsets, ids = _raster_kernel.tile_lists(order, np.ascontiguousarray(rect // TILE), tiles_x, tiles_x * tiles_y)
+    stats.seconds["tiles"] = time.perf_counter() - start
+    stats.visible, stats.intersections = len(order), int(offsets[-1])
+    return Tiles(offsets, ids, rect, tiles_x)
+
+
+def composite(
+    tiles: Tiles,
+    means2d: np.ndarray,
+    conics: np.ndarray,
+    colors: np.ndarray,
+    opacities: np.ndarray,
+    width: int,
+    height: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Front-to-back compositing of float32 arrays over ``tiles`` → ``(colour (H,W,3) before the background,
+    transmittance (H,W), last (H,W))``, ``last`` one past each pixel's last composited entry of ``tiles.ids``."""
+    image = np.zeros((height, width, 3), dtype=np.float32)
+    transmittance = np.ones((height, width), dtype=np.float32)
+    last = np.zeros((height, width), dtype=np.int64)
+    launch(
+        _raster_kernel.composite,
+        tiles.offsets,
+        tiles.ids,
+        means2d,
+        conics,
+        colors,
+        opacities,
+        tiles.rect,
+        width,
+        height,
+        TILE,
+        tiles.tiles_x,
+        np.float32(MIN_ALPHA),
+        np.float32(MAX_ALPHA),
+        np.float32(MIN_TRANSMITTANCE),
+        image,
+        transmittance,
+        last,
+    )
+    return image, transmittance, last
+
+
+def float32(t: torch.Tensor) -> np.ndarray:
+    """A contiguous float32 numpy copy of ``t`` (detached, on the CPU)."""
+    return np.ascontiguousarray(t.detach().cpu().numpy(), dtype=np.float32)
+
+
 def rasterize(
     means2d: torch.Tensor,
     conics: torch.Tensor,
@@ -78,49 +156,13 @@ def rasterize(
     ``(N,)`` opacities in [0, 1], ``(N,)`` view depths) → ``(image (H,W,3), transmittance (H,W))`` float32 on the
     CPU, no autograd (module docstring). ``stats`` receives the counts and stage times."""
     stats = RasterStats() if stats is None else stats
+    mu, conic, rgb, opacity = (float32(t) for t in (means2d, conics, colors, opacities))
+    variances, depths = variances.detach().cpu().numpy(), depths.detach().cpu().numpy()
+    tiles = tile_lists(mu, variances, opacity, depths, width, height, stats)
     start = time.perf_counter()
-    arrays = [np.ascontiguousarray(t.detach().cpu().numpy(), dtype=np.float32) for t in (means2d, conics, colors)]
-    mu, conic, rgb = arrays
-    opacity = np.ascontiguousarray(opacities.detach().cpu().numpy(), dtype=np.float32)
-    depth = depths.detach().cpu().numpy()
-    visible, rect = pixel_rects(mu, variances.detach().cpu().numpy(), opacity, depth, width, height)
-    stats.seconds["cull"] = time.perf_counter() - start
-    start = time.perf_counter()
-    index = np.flatnonzero(visible)
-    order = index[np.argsort(depth[index], kind="stable")].astype(np.int64)
-    stats.seconds["sort"] = time.perf_counter() - start
-    start = time.perf_counter()
-    tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-    tile_rect = np.ascontiguousarray(rect // TILE)
-    offsets, ids = _raster_kernel.tile_lists(order, tile_rect, tiles_x, tiles_x * tiles_y)
-    stats.seconds["tiles"] = time.perf_counter() - start
-    start = time.perf_counter()
-    image = np.zeros((height, width, 3), dtype=np.float32)
-    transmittance = np.ones((height, width), dtype=np.float32)
-    count = np.zeros((height, width), dtype=np.int32)
-    launch(
-        _raster_kernel.composite,
-        offsets,
-        ids,
-        mu,
-        conic,
-        rgb,
-        opacity,
-        rect,
-        width,
-        height,
-        TILE,
-        tiles_x,
-        np.float32(MIN_ALPHA),
-        np.float32(MAX_ALPHA),
-        np.float32(MIN_TRANSMITTANCE),
-        image,
-        transmittance,
-        count,
-    )
+    image, transmittance, _ = composite(tiles, mu, conic, rgb, opacity, width, height)
     image += transmittance[:, :, None] * np.asarray(background, dtype=np.float32)
     stats.seconds["composite"] = time.perf_counter() - start
-    stats.visible, stats.intersections = len(order), int(offsets[-1])
     return torch.from_numpy(image), torch.from_numpy(transmittance)
 
 
