@@ -24,24 +24,20 @@ from typing import Literal
 
 import numpy as np
 
+from nerfedit_plugin.edit.coarse import MULTIRES_ABOVE, CoarseOptions, cached_coarse_level
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.geometry.multires import CoarseLevel, MultiresArap, coarse_level, identity_level, rigid_fit
+from nerfedit_plugin.geometry.multires import MultiresArap, rigid_fit
 from nerfedit_plugin.timing import Span
 
 PREVIEW_ITERATIONS = 2
 """ARAP local/global iterations per preview solve (each ~30–40 ms on the 28k-vertex bunny, 2 cores), plain: over two
 iterations Anderson acceleration's extra local steps cost more than they gain (bunny drag: 81 vs 152 ms per move,
 +53 % vs +42 % energy above the converged solve; docs/benchmarks.md)."""
-MULTIRES_ABOVE = 60_000
-"""``multiresolution = "auto"``: meshes of more vertices than this are solved by multiresolution, the others
-directly (docs/benchmarks.md, "Edits at scale")."""
-COARSE_FORMAT = 1
-"""Version of the coarse level and binding kept in the bind cache (part of its key)."""
 RIGID_BELOW = 1e-12
 """Handle targets within this × the bbox diagonal of one rigid motion of their rest positions make a rigid frame: its
 coarse solve starts from that motion (the minimum itself)."""
@@ -52,7 +48,7 @@ Anderson's 56 to the stopping test)."""
 
 
 @dataclasses.dataclass
-class ArapConfig(DeformerConfig):
+class ArapConfig(DeformerConfig, CoarseOptions):
     """As-rigid-as-possible surface deformation (Sorkine & Alexa 2007) with handle vertices."""
 
     _target: type = dataclasses.field(default_factory=lambda: ArapDeformer)
@@ -70,24 +66,9 @@ class ArapConfig(DeformerConfig):
     fewer iterations on large ones (from about 100k vertices), so within ``max_iterations`` it ends closer to the
     converged energy."""
 
-    multiresolution: Literal["auto", "on", "off"] = "auto"
-    """``on``: solve ARAP on a coarse level of the surface (vertex clustering) and carry the fine surface as detail
-    in the coarse solution's local frames, handle vertices placed exactly; ``off``: solve on the mesh itself;
-    ``auto``: ``on`` for meshes of more than :data:`MULTIRES_ABOVE` vertices."""
-    coarse_vertices: int = 30_000
-    """Vertex count (a number of vertices) aimed at for the coarse level of the multiresolution solve; the
-    clustering lands within about 10 % of it. At or above the mesh's own count the coarse level is the mesh."""
-
     def __post_init__(self) -> None:
         check_option(self, "max_iterations", self.max_iterations, self.max_iterations >= 1, ">= 1")
-        check_option(
-            self,
-            "multiresolution",
-            self.multiresolution,
-            self.multiresolution in ("auto", "on", "off"),
-            "'auto', 'on' or 'off'",
-        )
-        check_option(self, "coarse_vertices", self.coarse_vertices, self.coarse_vertices >= 3, ">= 3")
+        self.check_coarse_options()
         check_option(self, "tolerance", self.tolerance, 0 <= self.tolerance < float("inf"), "a number >= 0")
         check_option(self, "solver", self.solver, self.solver in ("lbfgs", "anderson"), "'lbfgs' or 'anderson'")
 
@@ -172,25 +153,16 @@ class ArapDeformer(Deformer):
         # validates the spec before any factorising
         self.handles, self.targets = edit.handle_targets(rest.vertices, rest.faces)
         config = self.config
-        size = rest.n_vertices
-        multires = config.multiresolution == "on" or (config.multiresolution == "auto" and size > MULTIRES_ABOVE)
         self.results: list[ArapResult] = []
         self.frame_reports: list[dict] = []
         self.level, self.level_cached = None, False
         try:
-            if not multires:
+            if not config.binds_coarse(rest):
                 self.on_progress(0, None, "factorising")
                 self.solver = ArapSolver(rest.vertices, rest.faces, energy=config.energy, fixed=self.handles)
                 return
             self.on_progress(0, None, "coarse level")
-            if config.coarse_vertices >= size:
-                self.level = identity_level(rest)
-            else:
-                params = {"coarse_vertices": config.coarse_vertices, "format": COARSE_FORMAT}
-                arrays, self.level_cached = self.bind_cache.fetch(
-                    "arap-coarse", params, lambda: coarse_level(rest, config.coarse_vertices).arrays()
-                )
-                self.level = CoarseLevel.from_arrays(arrays)
+            self.level, self.level_cached = cached_coarse_level(self.bind_cache, rest, config.coarse_vertices)
             self.on_progress(0, None, f"factorising the coarse level ({self.level.coarse.n_vertices} vertices)")
             self.multires = MultiresArap(self.level, rest, self.handles, energy=config.energy)
         except NerfEditError as exc:

@@ -24,6 +24,7 @@ from deformers.skeleton.bvh import BvhClip, parse_bvh, placed_bvh
 from deformers.skeleton.editing import SkeletonBackend
 from deformers.skeleton.heat_weights import bone_heat_weights
 from deformers.skeleton.skinning import Binding, normalize_weights, skin
+from nerfedit_plugin.edit.coarse import CoarseOptions, cached_coarse_level
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.spec import EditSpec, check_keys, vector
 from nerfedit_plugin.errors import NerfEditError, check_option
@@ -210,7 +211,7 @@ def load_skeleton(path: Path) -> tuple[Skeleton, BvhClip | None]:
 
 
 @dataclasses.dataclass
-class SkeletonConfig(DeformerConfig):
+class SkeletonConfig(DeformerConfig, CoarseOptions):
     """Pose a skeleton (JSON joints or BVH) and skin the mesh to it, with automatic bone-heat weights."""
 
     _target: type = dataclasses.field(default_factory=lambda: SkeletonDeformer)
@@ -229,6 +230,7 @@ class SkeletonConfig(DeformerConfig):
         check_option(self, "heat_bones", self.heat_bones, self.heat_bones >= 1, ">= 1")
         check_option(self, "heat_strength", self.heat_strength, 0 < self.heat_strength < math.inf, "a number > 0")
         check_option(self, "weight_threshold", self.weight_threshold, 0 <= self.weight_threshold < 1, "in [0, 1)")
+        self.check_coarse_options()
 
 
 class SkeletonDeformer(Deformer):
@@ -242,24 +244,56 @@ class SkeletonDeformer(Deformer):
         cfg = self.config
         skeleton, clip = load_skeleton(edit.path("skeleton"))
         local_rot, local_trans = self._local_transforms(skeleton, clip, edit)
+        self.level, self.level_cached = None, False
         if "weights" in edit.extra:
             weights = self._read_weights(edit.path("weights"), rest, skeleton)
         else:
-            weights = bone_heat_weights(
-                rest.vertices,
-                rest.faces,
-                skeleton.heads,
-                skeleton.tails,
-                nearest=cfg.heat_bones,
-                visibility=cfg.visibility,
-                strength=cfg.heat_strength,
-                progress=self.on_progress,
-            )
+            weights = self._heat_weights(rest, skeleton)
         self.skeleton, self.rest = skeleton, rest
+        self.weights_source = "file" if "weights" in edit.extra else "bone heat"
         self.binding = Binding.create(rest.vertices, normalize_weights(weights, cfg.weight_threshold))
         self.rot, self.trans = skeleton.forward_kinematics(local_rot, local_trans)
         self._scene = None
         self._cached: tuple[np.ndarray, Binding] | None = None
+
+    def _heat_weights(self, rest: SurfaceMesh, skeleton: Skeleton) -> np.ndarray:
+        """Bone heat on ``rest``, or (:meth:`CoarseOptions.binds_coarse`) on its coarse level, blended to each fine
+        vertex by the barycentrics of its closest coarse point (rows still sum to 1; a rigid pose stays rigid)."""
+        cfg = self.config
+        surface = rest
+        if cfg.binds_coarse(rest):
+            self.on_progress(0, None, "coarse level")
+            self.level, self.level_cached = cached_coarse_level(self.bind_cache, rest, cfg.coarse_vertices)
+            surface = self.level.coarse
+        weights = bone_heat_weights(
+            surface.vertices,
+            surface.faces,
+            skeleton.heads,
+            skeleton.tails,
+            nearest=cfg.heat_bones,
+            visibility=cfg.visibility,
+            strength=cfg.heat_strength,
+            progress=self.on_progress,
+        )
+        if self.level is None or self.level.is_identity:
+            return weights
+        corners, blend = self.level.corners, self.level.weights
+        fine = blend[:, :1] * weights[corners[:, 0]]
+        for c in (1, 2):
+            fine += blend[:, c : c + 1] * weights[corners[:, c]]
+        return fine
+
+    def report(self) -> dict:
+        """``weights`` (``file`` or ``bone heat``) and ``path`` (``direct``, or ``multiresolution``: the heat solved on
+        a coarse level, whose ``coarse`` gives ``vertices``, ``faces`` and ``cached``: read from the bind cache)."""
+        report = {
+            "weights": self.weights_source,
+            "path": "direct" if self.level is None else "multiresolution",
+        }
+        if self.level is not None:
+            coarse = self.level.coarse
+            report["coarse"] = {"vertices": coarse.n_vertices, "faces": len(coarse.faces), "cached": self.level_cached}
+        return report
 
     @classmethod
     def identity_edit(cls, edit: dict, rest: SurfaceMesh) -> dict | None:

@@ -15,7 +15,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-import deformers.arap as arap
+import nerfedit_plugin.edit.coarse as coarse
 from deformers.arap import ArapConfig
 from nerfedit_plugin.edit.deformer import BindCache
 from nerfedit_plugin.edit.spec import parse_edit_spec
@@ -153,7 +153,7 @@ def test_identity_and_rigid_edits_are_exact_and_keep_the_bumps():
 def test_auto_threshold_and_override(cylinder, monkeypatch):
     _, model = deform(cylinder, BEND)
     assert model.report()["path"] == "direct"  # 5808 vertices: below the threshold
-    monkeypatch.setattr(arap, "MULTIRES_ABOVE", 1000)
+    monkeypatch.setattr(coarse, "MULTIRES_ABOVE", 1000)
     _, model = deform(cylinder, BEND, coarse_vertices=1500)
     assert model.report()["path"] == "multiresolution"
     _, model = deform(cylinder, BEND, multiresolution="off")
@@ -183,7 +183,7 @@ def test_bind_cache_keeps_the_coarse_level(cylinder, tmp_path):
     assert np.array_equal(first, again)
     _, model = deform(cylinder, BEND, cache, multiresolution="on", coarse_vertices=1200)
     assert model.report()["coarse"]["cached"] is False  # other parameters, other entry
-    assert len(list(tmp_path.glob("bind-arap-coarse-*.npz"))) == 2
+    assert len(list(tmp_path.glob("bind-coarse-level-*.npz"))) == 2
 
 
 def test_bind_cache_contract(tmp_path):

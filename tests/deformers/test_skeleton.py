@@ -360,3 +360,37 @@ def test_conformance_kit_json_pose(check, folder):
 )
 def test_conformance_kit_bvh_clip(check, folder):
     check(base_dir=folder)
+
+
+# ---- multiresolution -------------------------------------------------------------------------------------------------
+def test_bone_heat_on_a_coarse_level(folder, tmp_path):
+    """Bone heat solved on a clustering of the tube to ~300 vertices and blended to its 986: rows still sum to 1 and
+    are non-negative, a root pose is still rigid, a bend lands near the direct bind's; a coarse level of the mesh's
+    own size gives the direct weights exactly; a second bind reads the level from the bind cache."""
+    from nerfedit_plugin.edit.deformer import BindCache, mesh_digest
+
+    spec = pose(upper={"rotate": {"axis": [1, 0, 0], "degrees": 60}})
+    direct = bind(folder, spec)
+    assert direct.report() == {"weights": "bone heat", "path": "direct"}
+    coarse = bind(folder, spec, multiresolution="on", coarse_vertices=300)
+    report = coarse.report()
+    assert report["path"] == "multiresolution" and 270 <= report["coarse"]["vertices"] <= 330
+    assert np.allclose(coarse.weights.sum(1), 1, atol=1e-12) and (coarse.weights >= 0).all()
+    error = np.linalg.norm(coarse.deform()[0] - direct.deform()[0], axis=1)
+    assert error.max() < 0.05 * TUBE.bbox_diagonal and error.mean() < 0.01 * TUBE.bbox_diagonal
+    rigid = pose(lower={"rotate": {"axis": [1, 2, 3], "degrees": 70}, "translate": [0.3, -0.2, 0.5]})
+    np.testing.assert_allclose(
+        bind(folder, rigid, multiresolution="on", coarse_vertices=300).deform()[0], bind(folder, rigid).deform()[0],
+        atol=1e-12,
+    )  # fmt: skip
+    whole = bind(folder, spec, multiresolution="on", coarse_vertices=TUBE.n_vertices)
+    np.testing.assert_array_equal(whole.weights, direct.weights)
+    cache = BindCache(tmp_path / "cache", mesh_digest(TUBE))
+    runs = []
+    for _ in range(2):
+        deformer = SkeletonConfig(multiresolution="on", coarse_vertices=300).setup()
+        deformer.bind_cache = cache
+        deformer.bind(TUBE, parse_edit_spec(spec, SkeletonDeformer.spec_keys, "edit.json", folder))
+        runs.append((deformer.report()["coarse"]["cached"], deformer.weights))
+    assert [hit for hit, _ in runs] == [False, True]
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
