@@ -8,8 +8,9 @@ proxy and its frames) and ``SceneDeformation`` (several objects, copies and chai
 A field drawn from primitives (``Field.rendering == "primitives"``) moves the primitives instead:
 :class:`ForwardMap` carries rest points into deformed space with the local Jacobian ``F = ∂x'/∂x`` (a tet's
 deformation gradient ``D' D⁻¹``, ``D`` the matrix of its edge vectors), which a primitive's shape is transformed by.
-``DeformationField`` declares it. Both are structural :class:`typing.Protocol`\ s: a third party's deformation
-passes if it has the members.
+``DeformationField`` declares it. A scene edit may send a rest point to several places (copies) or none (removed and
+vacated content): :class:`PlacementMap` (``SceneDeformation``). All three are structural :class:`typing.Protocol`\ s:
+a third party's deformation passes if it has the members.
 """
 
 from __future__ import annotations
@@ -37,6 +38,12 @@ class DeformedPoints(NamedTuple):
     points: torch.Tensor  # (M,3) x' (x itself where not inside the rest proxy T)
     inside: torch.Tensor  # (M,) bool: located in the rest proxy T (mapped)
     gradient: torch.Tensor  # (M,3,3) dx'/dx, constant per tet; identity where not inside
+
+
+class Placement(NamedTuple):
+    source: torch.Tensor  # (P,) int64: the rest point each placement is of, non-decreasing
+    points: torch.Tensor  # (P,3) where it is placed
+    gradient: torch.Tensor  # (P,3,3) dx'/dx there
 
 
 @runtime_checkable
@@ -79,3 +86,17 @@ class ForwardMap(Protocol):
 
     def to_deformed(self, x: torch.Tensor, frame: int = 0) -> DeformedPoints:
         """Map rest points ``x (M,3)`` to ``frame`` → :class:`DeformedPoints`."""
+
+
+@runtime_checkable
+class PlacementMap(Protocol):
+    """Canonical (rest) space → deformed space where a rest point may appear any number of times, per frame: once
+    per instance that carries it (moved, or copied), not at all where the content was removed or its rest place is
+    vacated, and — for what no instance owns — in place unless moved content covers it there."""
+
+    @property
+    def n_frames(self) -> int:
+        """Frames of the deformation."""
+
+    def place(self, x: torch.Tensor, frame: int = 0) -> Placement:
+        """Place rest points ``x (M,3)`` in ``frame`` → :class:`Placement` (in rest-point order)."""

@@ -10,9 +10,15 @@ moved or not, and its copies; a removed object has no instance of its own). A de
   that was removed: empty (vacated);
 - else: ``x`` itself (identity; Jacobian ``I``).
 
+Primitives (splats) are placed forward by the same rule (:meth:`SceneDeformation.place`): a rest point in an object's
+``T_o`` is placed by each of its object's instances at ``Σ b_j d_j`` (its rest barycentrics, the instance's deformed
+corners), unless an earlier instance's ``T'`` holds that place; any other rest point stays where it is unless it lies
+in a vacated region or in some instance's ``T'``. What lands at a point is then what ray bending shows there.
+
 A chain of stages (the second edit's rest is the first one's deformed mesh) maps ``x`` through the newest stage, then
 each older stage at the frame the next edit started from; a point is empty if any stage empties it, and the Jacobian
-is the product ``J_0 ⋯ J_newest``. One object with one instance in one stage is exactly a :class:`DeformationField`.
+is the product ``J_0 ⋯ J_newest``; placing runs the stages oldest first, the gradients multiplied. One object with
+one instance in one stage is exactly a :class:`DeformationField`.
 
 Saved as ``deformation.npz`` format 2: ``format_version = 2``, ``layout`` (JSON: per stage its ``frame``, objects'
 and instances' names, each instance's ``object``) and the arrays ``s{s}_o{o}_rest_vertices``, ``s{s}_o{o}_tets``,
@@ -32,7 +38,7 @@ import torch
 
 from nerfedit_plugin.bending.deformation_field import DeformationField, validate_arrays
 from nerfedit_plugin.bending.locate import TetLocator
-from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints
+from nerfedit_plugin.bending.maps import BentPoints, CanonicalPoints, Placement
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.io.atomic import atomic_path
 
@@ -165,6 +171,17 @@ class SceneDeformation:
         """:meth:`DeformationField.to_canonical` for the scene."""
         bent = self.bend(x, frame)
         return CanonicalPoints(bent.points, bent.tet >= 0, bent.empty, self.jacobian(bent.tet, frame))
+
+    def place(self, x: torch.Tensor, frame: int = 0) -> Placement:
+        """Place rest points ``x (M,3)`` in ``frame`` (module docstring), through every stage oldest first →
+        :class:`~nerfedit_plugin.bending.maps.Placement`: a :class:`~nerfedit_plugin.bending.maps.PlacementMap`."""
+        points = torch.as_tensor(x).to(device=self.device, dtype=self.dtype).reshape(-1, 3)
+        source = torch.arange(len(points), device=self.device)
+        gradient = torch.eye(3, dtype=self.dtype, device=self.device).expand(len(points), 3, 3)
+        for stage, f in reversed(self._frames(frame)):
+            rows, points, local = _place_stage(stage, points, f)
+            source, gradient = source.index_select(0, rows), local @ gradient.index_select(0, rows)
+        return Placement(source, points, gradient)
 
     def moved_bounds(self, frame: int = 0) -> np.ndarray | None:
         """``(2,3)`` box of every instance's moved tets (:meth:`DeformationField.moved_bounds`) over all stages at
@@ -370,6 +387,36 @@ def _bend_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor
         if len(rows):
             empty.index_fill_(0, rows[locator.member(x.index_select(0, rows)) >= 0], True)
     return out, tet, empty & (tet < 0)
+
+
+def _place_stage(stage: Stage, x: torch.Tensor, frame: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rest points ``x (M,3)`` through one stage → ``(rows (P,) non-decreasing, points (P,3), gradient (P,3,3))``:
+    each instance places the points of its object's ``T_o`` unless an earlier instance's ``T'`` holds the place; the
+    other points stay unless vacated or inside some instance's ``T'`` (module docstring)."""
+    rows, points, gradients = [], [], []
+    vacated = torch.zeros(len(x), dtype=torch.bool, device=x.device)
+    covered = torch.zeros_like(vacated)
+    for j, (instance, deformation) in enumerate(zip(stage.instances, stage._fields)):
+        moved = deformation.to_deformed(x, frame)
+        inside = torch.nonzero(moved.inside).squeeze(1)
+        placed = moved.points.index_select(0, inside)
+        free = torch.ones(len(inside), dtype=torch.bool, device=x.device)
+        for earlier in stage._fields[:j]:
+            free &= earlier.bend(placed, frame).tet < 0
+        rows.append(inside[free])
+        points.append(placed[free])
+        gradients.append(moved.gradient.index_select(0, inside)[free])
+        if instance.vacates:
+            vacated |= moved.inside
+        covered |= deformation.bend(x, frame).tet >= 0
+    for locator in stage._vacated:
+        vacated |= locator.member(x) >= 0
+    stay = torch.nonzero(~vacated & ~covered).squeeze(1)
+    rows.append(stay)
+    points.append(x.index_select(0, stay))
+    gradients.append(torch.eye(3, dtype=x.dtype, device=x.device).expand(len(stay), 3, 3))
+    order = torch.argsort(torch.cat(rows), stable=True)
+    return torch.cat(rows)[order], torch.cat(points)[order], torch.cat(gradients)[order]
 
 
 def _stage_jacobian(stage: Stage, tet: torch.Tensor, frame: int, dtype: torch.dtype) -> torch.Tensor:

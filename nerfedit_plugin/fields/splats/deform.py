@@ -1,7 +1,9 @@
 r"""The forward map of a Gaussian splat model: every Gaussian carried from rest to deformed space.
 
 A Gaussian ``(μ, Σ = R_q S² R_qᵀ, opacity, sh)`` whose mean lies in the rest proxy of a
-:class:`~nerfedit_plugin.bending.maps.ForwardMap` (local Jacobian ``F``, constant per tet) becomes:
+:class:`~nerfedit_plugin.bending.maps.ForwardMap` (local Jacobian ``F``, constant per tet) becomes the following; a
+scene edit (a :class:`~nerfedit_plugin.bending.maps.PlacementMap`) makes one such Gaussian per place of its mean —
+copies for copied objects, none for removed or vacated content, by the ownership rule of ray bending:
 
 - ``μ' = φ(μ)``, ``Σ' = F Σ Fᵀ``, opacity unchanged;
 - ``Σ'`` re-expressed as a unit quaternion and log-scales: with the polar decomposition ``F = R U`` (``R`` a
@@ -32,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from nerfedit_plugin.bending.maps import ForwardMap
+from nerfedit_plugin.bending.maps import ForwardMap, Placement, PlacementMap
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.splats.model import SplatModel
 from nerfedit_plugin.fields.splats.projection import rotation_matrices
@@ -45,11 +47,15 @@ _PERMUTATIONS = torch.tensor([[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0,
 
 @dataclass
 class DeformReport:
-    """What :func:`deform_model` did: Gaussians in, moved (in a moving tet), in inverted tets, split into children
-    (parents, children added), and the anisotropy growth ``g`` of the moved ones (max and 99th percentile; 1 when
-    none moved)."""
+    """What :func:`deform_model` did: Gaussians in, placed (out, before splitting), removed (placed nowhere), copied
+    (placements beyond a Gaussian's first), moved (in a moving tet), in inverted tets, split into children (parents,
+    children added), and the anisotropy growth ``g`` of the moved ones (max and 99th percentile; 1 when none
+    moved)."""
 
     gaussians: int = 0
+    placed: int = 0
+    removed: int = 0
+    copied: int = 0
     moved: int = 0
     inverted: int = 0
     split: int = 0
@@ -112,32 +118,30 @@ def _nearest_axes(vectors: torch.Tensor) -> torch.Tensor:
 
 
 def deform_model(
-    model: SplatModel, deformation: ForwardMap, frame: int = 0, *, split_growth: float | None = None
+    model: SplatModel, deformation: ForwardMap | PlacementMap, frame: int = 0, *, split_growth: float | None = None
 ) -> tuple[SplatModel, DeformReport]:
     """``model`` moved by ``deformation`` at ``frame`` (module docstring) → ``(model in its dtype, report)``; with
     ``split_growth``, stretched Gaussians are split (children appended after the model's Gaussians, the first child
     in its parent's place)."""
-    if not isinstance(deformation, ForwardMap):
-        raise NerfEditError(
-            f"a {type(deformation).__name__} has no forward map: splats move only by a single edit's deformation "
-            "(scene edits and edits of edits, deformation.npz format 2, are not supported for splats yet)"
-        )
-    dtype = model.means.dtype
-    means = torch.from_numpy(np.ascontiguousarray(model.means))
-    moved = deformation.to_deformed(means, frame)
-    eye = torch.eye(3, dtype=moved.gradient.dtype)
-    changed = (moved.points.to(means) != means).any(1) | (moved.gradient != eye).flatten(1).any(1)
-    rows = torch.nonzero(changed.cpu()).squeeze(1)
-    report = DeformReport(gaussians=len(model), moved=len(rows))
-    out = SplatModel(*(a.copy() for a in model.arrays()))
+    dtype, count = model.means.dtype, len(model)
+    placed = _placement(deformation, torch.from_numpy(np.ascontiguousarray(model.means)), frame)
+    source = placed.source.cpu().numpy()
+    kept = len(np.unique(source))
+    out = SplatModel(*(a[source] for a in model.arrays()))  # fresh arrays, updated in place below
+    means = torch.from_numpy(out.means)
+    points, gradient = placed.points.cpu(), placed.gradient.cpu()
+    eye = torch.eye(3, dtype=gradient.dtype)
+    rows = torch.nonzero((points.to(means) != means).any(1) | (gradient != eye).flatten(1).any(1)).squeeze(1)
+    report = DeformReport(count, len(source), count - kept, len(source) - kept, len(rows))
     if len(rows) == 0:
         return out, report
-    f = moved.gradient.index_select(0, rows).double().cpu()
+    f = gradient.index_select(0, rows).double()
     rotation, inverted = polar_rotations(f)
     report.inverted = int(inverted.sum())
     stretch = rotation.transpose(1, 2) @ f  # U = Rᵀ F
-    quats = torch.from_numpy(model.quats[rows.numpy()]).double()
-    scales = torch.exp(torch.from_numpy(model.log_scales[rows.numpy()]).double())
+    index = rows.numpy()
+    quats = torch.from_numpy(out.quats[index]).double()
+    scales = torch.exp(torch.from_numpy(out.log_scales[index]).double())
     axes = rotation_matrices(quats)
     local = axes.transpose(1, 2) @ stretch @ axes * scales[:, None, :]  # B = R_qᵀ U R_q S: C = B Bᵀ
     covariance = local @ local.transpose(1, 2)
@@ -147,14 +151,23 @@ def deform_model(
     new_axes = rotation @ axes @ q
     growth = (new_scales.amax(1) / new_scales.amin(1)) / (scales.amax(1) / scales.amin(1))
     report.growth = {"max": float(growth.max()), "p99": float(torch.quantile(growth, 0.99))}
-    index = rows.numpy()
-    out.means[index] = moved.points.index_select(0, rows).cpu().numpy()
+    out.means[index] = points.index_select(0, rows).numpy()
     out.quats[index] = matrix_quaternions(new_axes).numpy()
     out.log_scales[index] = torch.log(new_scales).numpy()
-    out.sh[index] = rotate_sh(torch.from_numpy(model.sh[index]).double(), rotation).numpy()
+    out.sh[index] = rotate_sh(torch.from_numpy(out.sh[index]).double(), rotation).numpy()
     if split_growth is not None:
         out = _split(out, index, new_axes, new_scales, growth, split_growth, report)
     return out.astype(dtype), report
+
+
+def _placement(deformation: ForwardMap | PlacementMap, means: torch.Tensor, frame: int) -> Placement:
+    """Where ``deformation`` puts each of ``means (N,3)`` (a forward map: each once)."""
+    if isinstance(deformation, PlacementMap):
+        return deformation.place(means, frame)
+    if isinstance(deformation, ForwardMap):
+        moved = deformation.to_deformed(means, frame)
+        return Placement(torch.arange(len(means)), moved.points, moved.gradient)
+    raise NerfEditError(f"a {type(deformation).__name__} moves no primitives (no forward map: to_deformed or place)")
 
 
 def _split(
