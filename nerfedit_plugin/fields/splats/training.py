@@ -86,6 +86,10 @@ class SplatRecipe:
     """Gaussians whose largest scale exceeds this × the camera extent are pruned."""
     reset_every: int = 1000
     """Steps between opacity resets (before ``densify_until``)."""
+    threads: int = 1
+    """torch (and compiled-kernel) threads while training; 0 keeps torch's setting. A step is hundreds of small tensor
+    operations, each a parallel region that waits for every thread: on cores shared with other work one thread was
+    several times faster than two."""
 
     def __post_init__(self) -> None:
         check_option(self, "init_gaussians", self.init_gaussians, self.init_gaussians >= 4, "at least 4")
@@ -101,7 +105,7 @@ class SplatRecipe:
             check_option(self, name, value, 0 < value < math.inf, "a positive number")
         for name in ("sh_degree_every", "densify_every", "reset_every", "max_gaussians"):
             check_option(self, name, getattr(self, name), getattr(self, name) >= 1, "a positive integer")
-        for name in ("densify_from", "densify_until"):
+        for name in ("densify_from", "densify_until", "threads"):
             check_option(self, name, getattr(self, name), getattr(self, name) >= 0, ">= 0")
 
 
@@ -255,16 +259,22 @@ class SplatTrainer:
 def fit(field: Any, dataset: Any, eval_dataset: Any, trainer: TrainerConfig, points: np.ndarray | None) -> dict:
     """Initialise ``field`` on ``dataset`` (from the sparse ``points`` when given) and train it with the shared loop
     (module docstring); returns the loop's log with the final ``gaussians`` count."""
-    field.set_model(initial_model(field.scene_bbox, points, field.config.recipe, trainer.seed))
+    recipe = field.config.recipe
+    field.set_model(initial_model(field.scene_bbox, points, recipe, trainer.seed))
     run = SplatTrainer(field, dataset, trainer)
-    log = train(
-        field,
-        dataset,
-        trainer,
-        param_groups=run.param_groups,
-        loss=run.loss,
-        after_step=run.after_step,
-        eval_dataset=eval_dataset,
-    )
+    threads = torch.get_num_threads()
+    torch.set_num_threads(recipe.threads or threads)
+    try:
+        log = train(
+            field,
+            dataset,
+            trainer,
+            param_groups=run.param_groups,
+            loss=run.loss,
+            after_step=run.after_step,
+            eval_dataset=eval_dataset,
+        )
+    finally:
+        torch.set_num_threads(threads)
     log["gaussians"] = field.n_gaussians
     return log
