@@ -9,7 +9,8 @@ from numba import njit, prange
 @njit(cache=True, parallel=True)
 def carry(points, corners, weights, coarse_rest, coarse_moved, rotations, out):
     """points (V,3), corners (V,3) int64, weights (V,3), coarse_rest (C,3), coarse_moved (C,3), rotations (C,3,3)
-    → out (V,3): ``out_i = Σ_c w_ic (y_k + R_k (p_i − q_k))``, ``k = corners[i, c]`` (terms of weight 0 skipped)."""
+    (any linear maps) → out (V,3): ``out_i = Σ_c w_ic (y_k + R_k (p_i − q_k))``, ``k = corners[i, c]`` (terms of
+    weight 0 skipped)."""
     for i in prange(len(points)):
         a0 = a1 = a2 = 0.0
         for c in range(3):

@@ -269,10 +269,14 @@ class MultiresArap:
             turned = np.einsum("kab,kb->ka", rotations[c], q[self._carried] - q[c])
             moved[self._carried] = moved[c] + turned
             rotations[self._carried] = rotations[c]
-        out = np.empty_like(self.rest.vertices)
-        level = self.level
-        launch(
-            _kernel.carry, self.rest.vertices, level.corners, level.weights, level.coarse.vertices, moved, rotations,
-            out,
-        )  # fmt: skip
-        return out
+        return carry(self.level, self.rest.vertices, moved, rotations)
+
+
+def carry(level: CoarseLevel, fine: np.ndarray, moved: np.ndarray, maps: np.ndarray) -> np.ndarray:
+    """The fine rest vertices ``fine (V,3)`` of ``level``, carried by its coarse vertices moved to ``moved (C,3)``
+    with local linear maps ``maps (C,3,3)`` (rotations, or the Jacobians of a space map) → (V,3) float64:
+    ``p'_i = Σ_c w_ic (y_k + M_k (p_i − q_k))``. Exact for a common affine map ``x ↦ A x + t`` (every ``y_k = A q_k
+    + t``, ``M_k = A``), since each row of weights sums to 1."""
+    out = np.empty((len(fine), 3))
+    launch(_kernel.carry, fine, level.corners, level.weights, level.coarse.vertices, moved, maps, out)
+    return out
