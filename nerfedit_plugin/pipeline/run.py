@@ -95,7 +95,10 @@ class Run:
         if not self.mesh_path.is_file():
             if self.exact_mesh:
                 return self.field("cpu").extract_mesh()
-            raise NerfEditError(f"{self.path}: no {MESH} in the run (run `nerfedit extract --run {self.path}` first)")
+            raise NerfEditError(
+                f"{self.path}: no {MESH} in the run (run `nerfedit extract --run {self.path}` first, or give a mesh of "
+                "the scene with --mesh MESH.ply)"
+            )
         return SurfaceMesh.load(self.mesh_path)
 
     def cameras(self, split: str = "train") -> Cameras:
