@@ -1,18 +1,19 @@
-"""Test PSNR of the ``nerf`` and ``neus`` defaults, and the Chamfer distance of the ``neus`` mesh, on a set of scenes
-each hard in its own way (:mod:`nerfedit_plugin.data.shapes`): a thin tube, a cup's cavity, a tilted slab's flat
-faces, the bunny, and the bunny with a ~4-px texture.
+"""Test PSNR of the ``nerf`` and ``neus`` defaults (``splats`` on request), and the Chamfer distance of the ``neus``
+mesh, on a set of scenes each hard in its own way (:mod:`nerfedit_plugin.data.shapes`): a thin tube, a cup's cavity,
+a tilted slab's flat faces, the bunny, and the bunny with a ~4-px texture.
 
-    python bench/bench_fields.py [--scenes tube,cup] [--fields nerf,neus] [--seconds S] [--clock {wall,cpu}]
-                                 [--out DIR] [--set neus.eikonal_weight=1e-4 ...]
+    python bench/bench_fields.py [--scenes tube,cup] [--fields nerf,neus,splats] [--seconds S] [--clock {wall,cpu}]
+                                 [--resolution PX] [--out DIR] [--set neus.eikonal_weight=1e-4 ...]
     python bench/bench_fields.py --scene [--resolution 100] [--fields ...] [--seconds S] [--clock ...] [--set ...]
 
-Each scene is generated at 100×100 (50 train / 10 test views, white background, as ``bench/bench_train.py``) and
-each field trained with its default config for S seconds (default 300, the budget of the targets) on 2 threads;
+Each scene is generated at 100×100 (``--resolution``; 50 train / 10 test views, white background, as
+``bench/bench_train.py``) and each field trained with its default config for S seconds (default 300, the budget of the
+targets) on 2 threads (``splats`` trains on one, its default ``recipe.threads``);
 the figure is the PSNR over all test views at the end of the budget (curve: every 60 s), with the steps and training
 seconds actually used. The in-run reference is the exact ``mesh`` field of the source mesh rendered one ray per
 pixel (what the images' edge anti-aliasing costs a field rendered that way). For ``neus`` the Chamfer distance of
 the extracted zero level set (256³) to the source mesh is given in % of the source bbox diagonal
-(``bench_train.chamfer``). Targets: nerf ≥ 32 dB, neus ≥ 31 dB, Chamfer ≤ 0.5 %.
+(``bench_train.chamfer``). Targets: nerf ≥ 32 dB, neus ≥ 31 dB, splats ≥ 33 dB, Chamfer ≤ 0.5 %.
 
 ``--scene``: instead, the generated scene of ``SCENE_OBJECTS`` on its textured floor inside its textured far shell
 (:func:`nerfedit_plugin.data.scene.generate_scene`, opaque images, ``--resolution`` px, 50 train / 10 test views),
@@ -21,7 +22,7 @@ with ``background="color"`` (the constant-colour model of object datasets) — r
 and the Chamfer distance of each field's mesh (256³ over the foreground box) to the scene's geometry inside the box,
 in % of the box diagonal.
 
-Only a complete run (every scene and field, the default budget, no ``--set``) rewrites the table in
+Only a complete run (every scene, the default fields and budget at 100 px, no ``--set``) rewrites the table in
 docs/benchmarks.md between the bench_fields markers (with ``--scene``: between the bench_fields_scene markers, both
 fields at 100 px); other runs print it. ``--set FIELD.OPTION=VALUE`` overrides a
 config option (a YAML value; ``neus.train.n_samples=96``) for experiments. ``--out`` keeps the datasets, the
@@ -50,6 +51,7 @@ from nerfedit_plugin.data.synthetic import GenerateConfig, generate_dataset
 from nerfedit_plugin.fields.mesh_field import MeshField
 from nerfedit_plugin.fields.nerf import NerfConfig
 from nerfedit_plugin.fields.neus import NeusConfig
+from nerfedit_plugin.fields.splats.field import SplatsConfig
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import write_text
 from nerfedit_plugin.render.views import default_render_config
@@ -63,9 +65,11 @@ SCENES = {
     "bunny-fine": "shape:bunny-fine",
 }
 """Scene name → the generator's ``--mesh``."""
-BACKENDS = {"nerf": NerfConfig, "neus": NeusConfig}
-TARGETS = {"nerf": 32.0, "neus": 31.0}
-"""Test PSNR targets (dB) at the full budget."""
+BACKENDS = {"nerf": NerfConfig, "neus": NeusConfig, "splats": SplatsConfig}
+DEFAULT_FIELDS = ("nerf", "neus")
+"""The fields of a complete run (the docs table)."""
+TARGETS = {"nerf": 32.0, "neus": 31.0, "splats": 33.0}
+"""Test PSNR targets (dB) at the full budget (splats: nerf's + 1)."""
 CHAMFER_TARGET = 0.5
 """Chamfer distance target of the neus mesh, % of the bbox diagonal."""
 BUDGET = 300.0
@@ -119,7 +123,7 @@ def measure(scene: str, name: str, data: Path, train, test, args, background: st
     row = {
         "scene": scene,
         "field": name,
-        "background": field.config.background,
+        "background": getattr(field.config, "background", "color"),
         "psnr": log["eval"][-1][1],
         "curve": [p for _, p in log["eval"][1:]],
         "steps": log["steps"],
@@ -235,7 +239,7 @@ def run_scene(args, fields: list[str]) -> None:
         (args.out / "results.json").write_text(json.dumps({"rows": rows}, indent=2))
     text = scene_table(rows)
     print(f"\n{text}")
-    if fields == list(BACKENDS) and args.seconds == BUDGET and args.resolution == 100 and not args.set:
+    if fields == list(DEFAULT_FIELDS) and args.seconds == BUDGET and args.resolution == 100 and not args.set:
         load = os.getloadavg()
         write_docs(
             f"`python {' '.join(sys.argv)}` ({started:%Y-%m-%d %H:%M} UTC, {args.clock} clock, load average at the "
@@ -253,7 +257,7 @@ def run_scene(args, fields: list[str]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", default=",".join(SCENES), help=f"comma-separated, of {', '.join(SCENES)}")
-    parser.add_argument("--fields", default="nerf,neus", help="comma-separated, of nerf, neus")
+    parser.add_argument("--fields", default=",".join(DEFAULT_FIELDS), help="comma-separated, of nerf, neus, splats")
     parser.add_argument("--seconds", type=float, default=BUDGET, help="training budget per field")
     parser.add_argument(
         "--clock", choices=("wall", "cpu"), default="wall", help="training clock (see TrainerConfig.clock)"
@@ -261,7 +265,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="keep datasets, fields and results here")
     parser.add_argument("--set", action="append", default=[], help="FIELD.OPTION=VALUE config override")
     parser.add_argument("--scene", action="store_true", help="the generated scene with floor and far shell instead")
-    parser.add_argument("--resolution", type=int, default=100, help="--scene: image width and height")
+    parser.add_argument("--resolution", type=int, default=100, help="image width and height")
     args = parser.parse_args()
     scenes, fields = args.scenes.split(","), args.fields.split(",")
     unknown = sorted(set(scenes) - set(SCENES)) + sorted(set(fields) - set(BACKENDS))
@@ -277,7 +281,14 @@ def main() -> None:
         rows, references = [], {}
         for scene in scenes:
             data = generate_dataset(
-                GenerateConfig(out=args.out / scene / "data", mesh=SCENES[scene], n_train=50, n_test=10, overwrite=True)
+                GenerateConfig(
+                    out=args.out / scene / "data",
+                    mesh=SCENES[scene],
+                    n_train=50,
+                    n_test=10,
+                    resolution=args.resolution,
+                    overwrite=True,
+                )
             )
             train, test = load_dataset(data, "train"), load_dataset(data, "test")
             references[scene] = reference_psnr(data, test)
@@ -285,7 +296,8 @@ def main() -> None:
         (args.out / "results.json").write_text(json.dumps({"rows": rows, "references": references}, indent=2))
     text = table(rows, references)
     print(f"\n{text}")
-    complete = scenes == list(SCENES) and fields == list(BACKENDS) and args.seconds == BUDGET and not args.set
+    complete = scenes == list(SCENES) and fields == list(DEFAULT_FIELDS) and args.seconds == BUDGET
+    complete = complete and args.resolution == 100 and not args.set
     if complete:
         load = os.getloadavg()
         write_docs(

@@ -177,6 +177,10 @@ def test_a_capture_starts_from_its_sparse_points(tmp_path):
     random = initial_model(train.scene_bbox, None, SplatRecipe(init_gaussians=300), seed=0)
     lo, hi = train.scene_bbox.numpy()
     assert len(random) == 300 and ((random.means >= lo) & (random.means <= hi)).all()
+    centre = np.array([0.1, 0.2, 0.3])
+    scene = initial_model(train.scene_bbox, None, SplatRecipe(init_gaussians=300, far_gaussians=50), 0, (centre, 4.0))
+    assert np.array_equal(scene.means[:300], random.means)  # opaque images: the box, then the surroundings
+    assert np.allclose(np.linalg.norm(scene.means[300:] - centre, axis=1), 4.0, atol=1e-5) and len(scene) == 350
 
 
 def test_train_splats_on_a_dataset_then_render_evaluate_and_write_a_ply(tiny_scene, tmp_path):

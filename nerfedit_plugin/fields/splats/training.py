@@ -1,8 +1,11 @@
 r"""Training Gaussian splats on a dataset: the 3D Gaussian Splatting recipe (Kerbl et al. 2023) sized for a CPU.
 
 - **Start.** The capture's sparse points (COLMAP ``points3D``, a nerfstudio ``ply_file_path``) when the dataset has
-  them, else ``init_gaussians`` means uniform in the scene box; scales the mean distance to the 3 nearest other
-  means (isotropic), identity rotations, opacity ``init_opacity``, grey colour (SH DC 0, higher bands 0).
+  them, else ``init_gaussians`` means uniform in the scene box — and, for opaque images (a scene: floor and
+  surroundings run out of the box), ``far_gaussians`` more uniform on the sphere about the cameras' mean centre at
+  twice their largest distance from it; scales the mean distance to the 3 nearest other means (isotropic), identity
+  rotations, opacity ``init_opacity``, grey colour (SH DC 0, higher bands 0). Means are never confined to the box:
+  what lies outside it (floors, far backgrounds) is Gaussians too, over the dataset's constant background colour.
 - **Step.** One training view (a shuffled cycle over the views) rendered whole through the differentiable rasteriser
   (:mod:`.backward`: torch projection, numba compositor backward) over the dataset's background colour; loss
   ``(1 − λ) L1 + λ (1 − SSIM)`` (``λ = ssim_weight``; L1 over the dataset's mask when it has one); SH bands used up
@@ -48,6 +51,8 @@ class SplatRecipe:
 
     init_gaussians: int = 5000
     """Gaussians uniform in the scene box at the start when the dataset has no sparse points."""
+    far_gaussians: int = 2000
+    """Opaque images without sparse points: Gaussians that start on a sphere around the cameras (the surroundings)."""
     init_opacity: float = 0.1
     """Opacity of the starting Gaussians."""
     sh_degree: int = 3
@@ -105,24 +110,37 @@ class SplatRecipe:
             check_option(self, name, value, 0 < value < math.inf, "a positive number")
         for name in ("sh_degree_every", "densify_every", "reset_every", "max_gaussians"):
             check_option(self, name, getattr(self, name), getattr(self, name) >= 1, "a positive integer")
-        for name in ("densify_from", "densify_until", "threads"):
+        for name in ("densify_from", "densify_until", "threads", "far_gaussians"):
             check_option(self, name, getattr(self, name), getattr(self, name) >= 0, ">= 0")
+
+
+def camera_sphere(cameras: Any) -> tuple[np.ndarray, float]:
+    """The cameras' mean centre and the largest distance of a camera centre from it."""
+    centres = cameras.c2w[:, :3, 3].double().cpu()
+    mean = centres.mean(0)
+    return mean.numpy(), float(torch.linalg.norm(centres - mean, dim=1).max().clamp(min=1e-6))
 
 
 def camera_extent(cameras: Any) -> float:
     """1.1 × the largest distance of a camera centre from the centres' mean (3DGS's scene extent)."""
-    centres = cameras.c2w[:, :3, 3].double()
-    return 1.1 * float(torch.linalg.norm(centres - centres.mean(0), dim=1).max().clamp(min=1e-6))
+    return 1.1 * camera_sphere(cameras)[1]
 
 
-def initial_model(box: torch.Tensor, points: np.ndarray | None, config: Any, seed: int) -> SplatModel:
-    """The starting Gaussians (module docstring): at ``points (P,3)`` when given, else uniform in ``box (2,3)``."""
+def initial_model(
+    box: torch.Tensor, points: np.ndarray | None, config: Any, seed: int, far: tuple[np.ndarray, float] | None = None
+) -> SplatModel:
+    """The starting Gaussians (module docstring): at ``points (P,3)`` when given, else uniform in ``box (2,3)`` and,
+    with ``far = (centre (3,), radius)``, ``config.far_gaussians`` more uniform on that sphere."""
     from scipy.spatial import cKDTree
 
     rng = np.random.default_rng(seed)
     lo, hi = box.double().cpu().numpy()
     if points is None or len(points) < 4:
         means = lo + rng.random((config.init_gaussians, 3)) * (hi - lo)
+        if far is not None and config.far_gaussians:
+            directions = rng.normal(size=(config.far_gaussians, 3))
+            directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+            means = np.concatenate([means, far[0] + far[1] * directions])
     else:
         means = np.asarray(points, dtype=np.float64)
     distance, _ = cKDTree(means).query(means, k=4)
@@ -260,7 +278,9 @@ def fit(field: Any, dataset: Any, eval_dataset: Any, trainer: TrainerConfig, poi
     """Initialise ``field`` on ``dataset`` (from the sparse ``points`` when given) and train it with the shared loop
     (module docstring); returns the loop's log with the final ``gaussians`` count."""
     recipe = field.config.recipe
-    field.set_model(initial_model(field.scene_bbox, points, recipe, trainer.seed))
+    centre, radius = camera_sphere(dataset.cameras)
+    far = (centre, 2.0 * radius) if dataset.opaque else None
+    field.set_model(initial_model(field.scene_bbox, points, recipe, trainer.seed, far))
     run = SplatTrainer(field, dataset, trainer)
     threads = torch.get_num_threads()
     torch.set_num_threads(recipe.threads or threads)
