@@ -15,12 +15,19 @@ E ≤ (1 + 10⁻³) E_ref and their CPU time (the run's CPU per iteration × ite
 ``ArapSolver.solve`` (level by level, the methods interleaved, so both see the same machine load).
 
 ``--accuracy`` instead compares the deformer's result (its defaults, which take the multiresolution path above
-``deformers.arap.MULTIRES_ABOVE`` vertices; the direct solve; the multiresolution path forced at ``--coarse``
+``coarse_above`` vertices; the direct solve; the multiresolution path forced at ``--coarse``
 vertices) with the converged direct solve (tolerance 1e-10 from rest, at most 3000 L-BFGS iterations; cached in
 /tmp): mean and max vertex distance in units of the bbox diagonal, the path taken, the coarse size, the folded faces
 and the wall time of bind + deform.
 
-Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver [--method lbfgs anderson] | --accuracy [--coarse N]]``
+``--binds`` times the skeleton (``configs/skeleton_bunny_pose.json``, bone heat) and cage
+(``configs/cage_bunny_auto.json``, automatic cage, mean value coordinates) binds, each in its own subprocess: on the
+mesh itself (``direct``; levels up to ``--direct-up-to``) and on the coarse level with an empty bind cache (cold)
+and with the cache the cold bind filled (warm: the coarse level is read); the last frame's mean and max distance to
+the direct bind's, in units of the bbox diagonal, and its largest displacement for scale.
+
+Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver [--method lbfgs anderson] | --accuracy [--coarse N]
+| --binds [--direct-up-to L]]``
 """
 
 from __future__ import annotations
@@ -112,6 +119,65 @@ def accuracy_case(level: int, coarse: int) -> None:
         )
 
 
+BIND_EDITS = {"skeleton": "skeleton_bunny_pose.json", "cage": "cage_bunny_auto.json"}
+
+
+def bind_case(spec: str) -> None:
+    """One bind (the subprocess side): ``deformer:level:multiresolution:cache``; saves the last frame beside the
+    level's mesh and prints the bind seconds, the report and the peak RSS as one JSON line."""
+    from nerfedit_plugin.edit.deformer import BindCache, mesh_digest
+    from nerfedit_plugin.edit.spec import load_edit_spec
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+    from nerfedit_plugin.registry import DEFORMERS, discover
+
+    name, level, multiresolution, cache = spec.split(":", 3)
+    mesh = SurfaceMesh.load(level_mesh(int(level)))
+    config = discover().config_class(DEFORMERS, name)(multiresolution=multiresolution)
+    edit = load_edit_spec(ROOT / "configs" / BIND_EDITS[name], config._target.spec_keys).in_world(np.eye(4))
+    deformer = config.setup()
+    deformer.bind_cache = BindCache(cache, mesh_digest(mesh))
+    start = time.perf_counter()
+    deformer.bind(mesh, edit)
+    seconds = time.perf_counter() - start
+    np.save(f"/tmp/nerfedit_bench_scale_{name}_{level}_{multiresolution}.npy", deformer.deform()[-1])
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"seconds": seconds, "report": deformer.report(), "rss_mb": rss}))
+
+
+def binds(levels: list[int], direct_up_to: int) -> None:
+    """The skeleton and cage binds per level (:func:`bind_case` in subprocesses): prints a table row per bind."""
+    from nerfedit_plugin.geometry.mesh import SurfaceMesh
+
+    print(
+        "| deformer | vertices | path | bind cache | coarse vertices | bind s | peak RSS MB | mean / diag | "
+        "max / diag | moved / diag |"
+    )
+    print("|" + "---|" * 10)
+    for level in levels:
+        mesh = SurfaceMesh.load(level_mesh(level))
+        for name in BIND_EDITS:
+            with tempfile.TemporaryDirectory() as cache:
+                runs = [("direct", "off", "–")] if level <= direct_up_to else []
+                runs += [("multiresolution", "on", "cold"), ("multiresolution", "on", "warm")]
+                for path, multiresolution, state in runs:
+                    command = [sys.executable, __file__, "--bind-case", f"{name}:{level}:{multiresolution}:{cache}"]
+                    done = subprocess.run(command, check=True, capture_output=True, text=True, cwd=ROOT)
+                    r = json.loads(done.stdout.strip().splitlines()[-1])
+                    coarse = r["report"].get("coarse", {}).get("vertices", "–")
+                    error = "– | – | –"
+                    reference = Path(f"/tmp/nerfedit_bench_scale_{name}_{level}_off.npy")
+                    if multiresolution == "on" and level <= direct_up_to:
+                        deformed = np.load(f"/tmp/nerfedit_bench_scale_{name}_{level}_on.npy")
+                        distance = np.linalg.norm(deformed - np.load(reference), axis=1) / mesh.bbox_diagonal
+                        moved = np.linalg.norm(np.load(reference) - mesh.vertices, axis=1).max() / mesh.bbox_diagonal
+                        error = f"{distance.mean():.1e} | {distance.max():.1e} | {moved:.3f}"
+                    print(
+                        f"| {name} | {mesh.n_vertices} | {path} | {state} | {coarse} | {r['seconds']:.2f} | "
+                        f"{r['rss_mb']:.0f} | {error} |",
+                        flush=True,
+                    )
+
+
 def run_case(mesh: str, cache: str) -> None:
     """One edit (the subprocess side): prints its report's figures and the peak RSS as one JSON line."""
     from deformers.arap import ArapConfig
@@ -185,11 +251,20 @@ def main() -> None:
     )
     parser.add_argument("--accuracy", action="store_true", help="against the converged direct solve (levels 0-2)")
     parser.add_argument("--coarse", type=int, default=10_000, help="with --accuracy: coarse vertices of the forced row")
+    parser.add_argument("--binds", action="store_true", help="time the skeleton and cage binds")
+    parser.add_argument("--direct-up-to", type=int, default=2, help="with --binds: the last level bound directly too")
+    parser.add_argument("--bind-case", help=argparse.SUPPRESS)
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--cache", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case:
         run_case(args.case, args.cache)
+        return
+    if args.bind_case:
+        bind_case(args.bind_case)
+        return
+    if args.binds:
+        binds(args.levels, args.direct_up_to)
         return
     if args.accuracy:
         print("| vertices | config | path | coarse vertices | mean / diag | max / diag | folded | bind + deform s |")

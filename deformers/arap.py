@@ -5,7 +5,7 @@ Handle vertices are placed exactly (fixed ones stay at rest, moved ones follow t
 vertex minimises the ARAP energy. One factorisation serves all frames; each frame starts from the previous one.
 Every connected part of the mesh needs at least one handle vertex.
 
-Meshes of more than :data:`MULTIRES_ABOVE` vertices are solved by multiresolution
+Meshes of more than ``coarse_above`` vertices (60k by default) are solved by multiresolution
 (:mod:`nerfedit_plugin.geometry.multires`): exact ARAP on a vertex clustering of the surface of ``coarse_vertices``
 vertices, the fine surface carried as detail in the coarse solution's local frames, the handle vertices placed
 exactly. The coarse level and the binding are kept in the bind cache (:attr:`Deformer.bind_cache`), so the next edit
@@ -24,7 +24,7 @@ from typing import Literal
 
 import numpy as np
 
-from nerfedit_plugin.edit.coarse import MULTIRES_ABOVE, CoarseOptions, cached_coarse_level
+from nerfedit_plugin.edit.coarse import CoarseOptions, cached_coarse_level
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
 from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle
 from nerfedit_plugin.edit.spec import EditSpec
@@ -210,7 +210,7 @@ class ArapDeformer(Deformer):
         return report
 
     def report(self) -> dict:
-        """``path`` (``direct`` or ``multiresolution``), ``threshold_vertices`` (:data:`MULTIRES_ABOVE`), per frame
+        """``path`` (``direct`` or ``multiresolution``), ``threshold_vertices`` (``coarse_above``), per frame
         the solve's ``iterations``, ``energy`` (ARAP energy of the solved level), ``converged``; multiresolution
         adds ``coarse`` (``vertices``, ``faces``, ``handles``: its fixed vertices, ``cached``: read from the bind
         cache), ``detail_mean`` / ``detail_max`` (distance of the fine vertices to the coarse surface) and per frame
@@ -218,7 +218,7 @@ class ArapDeformer(Deformer):
         distances relative to the rest bbox diagonal."""
         report = {
             "path": "direct" if self.level is None else "multiresolution",
-            "threshold_vertices": MULTIRES_ABOVE,
+            "threshold_vertices": self.config.coarse_above,
             "per_frame": self.frame_reports,
         }
         if self.level is not None:

@@ -8,7 +8,7 @@ by the block, not the mesh) and poses every frame of the spec from each block in
 previews) re-poses with one matrix product per block, and otherwise evaluates them again block by block. Mesh points
 outside the cage trigger a warning (mean value coordinates extrapolate; Green coordinates are undefined there and fall
 back to mean value coordinates). On meshes bound on a coarse level (``multiresolution``, above
-:data:`~nerfedit_plugin.edit.coarse.MULTIRES_ABOVE` vertices by default) the coordinates are those of the coarse
+``coarse_above`` vertices, 250k by default) the coordinates are those of the coarse
 vertices and their difference stencils; the fine vertices follow the cage map's pose and Jacobian there. Formulas:
 docs/method.md, "Built-in deformers".
 """
@@ -70,6 +70,11 @@ class CageConfig(DeformerConfig, CoarseOptions):
     the bind). They take ``8 · C · V`` bytes as float64 for ``mvc``, ``8 · (C + F) · V`` for ``green`` (C cage
     vertices, F ≈ 2C faces): with the auto cage's 400 vertices, mvc keeps float64 up to ~1M mesh vertices and float32
     up to 2M; green float64 up to 330k, float32 up to 670k."""
+
+    coarse_above: int = 250_000
+    """``multiresolution = "auto"``: meshes of more vertices than this (a vertex count) bind on the coarse level (the
+    coordinates of its vertices and their difference stencils, four points each: worth it from a few times the
+    coarse level's size)."""
 
     def __post_init__(self) -> None:
         check_option(self, "auto_alpha", self.auto_alpha, self.auto_alpha > 0, "> 0")

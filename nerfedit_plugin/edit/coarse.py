@@ -16,8 +16,7 @@ from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.multires import CoarseLevel, coarse_level, identity_level
 
 MULTIRES_ABOVE = 60_000
-"""``multiresolution = "auto"``: meshes of more vertices than this bind on a coarse level, the others on the mesh
-itself (docs/benchmarks.md, "Edits at scale")."""
+"""The default of :attr:`CoarseOptions.coarse_above` (docs/benchmarks.md, "Edits at scale")."""
 LEVEL_FORMAT = 1
 """Version of the coarse level kept in the bind cache (part of its key)."""
 
@@ -28,7 +27,9 @@ class CoarseOptions:
 
     multiresolution: Literal["auto", "on", "off"] = "auto"
     """``on``: bind on a coarse level of the surface (vertex clustering) and carry the fine surface from it; ``off``:
-    bind on the mesh itself; ``auto``: ``on`` for meshes of more than :data:`MULTIRES_ABOVE` vertices."""
+    bind on the mesh itself; ``auto``: ``on`` for meshes of more than ``coarse_above`` vertices."""
+    coarse_above: int = MULTIRES_ABOVE
+    """``multiresolution = "auto"``: meshes of more vertices than this (a vertex count) bind on the coarse level."""
     coarse_vertices: int = 30_000
     """Vertex count (a number of vertices) aimed at for the coarse level; the clustering lands within about 10 % of
     it. At or above the mesh's own count the coarse level is the mesh."""
@@ -37,10 +38,11 @@ class CoarseOptions:
         choice = self.multiresolution
         check_option(self, "multiresolution", choice, choice in ("auto", "on", "off"), "'auto', 'on' or 'off'")
         check_option(self, "coarse_vertices", self.coarse_vertices, self.coarse_vertices >= 3, ">= 3")
+        check_option(self, "coarse_above", self.coarse_above, self.coarse_above >= 0, ">= 0")
 
     def binds_coarse(self, mesh: SurfaceMesh) -> bool:
         """Whether ``mesh`` is bound on a coarse level under these options."""
-        return self.multiresolution == "on" or (self.multiresolution == "auto" and mesh.n_vertices > MULTIRES_ABOVE)
+        return self.multiresolution == "on" or (self.multiresolution == "auto" and mesh.n_vertices > self.coarse_above)
 
 
 def cached_coarse_level(cache: BindCache, mesh: SurfaceMesh, vertices: int) -> tuple[CoarseLevel, bool]:

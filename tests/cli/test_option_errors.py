@@ -146,7 +146,7 @@ def test_configs_validate_when_built_in_python():
             "deformer_options",
             "enrgy",
             "spokes",
-            "deformer_options.enrgy: unknown key (the options are: coarse_vertices, energy,",
+            "deformer_options.enrgy: unknown key (the options are: coarse_above, coarse_vertices,",
         ),
         ("lift_options", "constraint_weight", "heavy", "lift_options.constraint_weight: expected a number"),
         ("lift_options", "injective", 1, "lift_options.injective: expected true or false, got 1"),

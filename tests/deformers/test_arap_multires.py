@@ -15,7 +15,6 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-import nerfedit_plugin.edit.coarse as coarse
 from deformers.arap import ArapConfig
 from nerfedit_plugin.edit.deformer import BindCache
 from nerfedit_plugin.edit.spec import parse_edit_spec
@@ -150,11 +149,10 @@ def test_identity_and_rigid_edits_are_exact_and_keep_the_bumps():
     assert np.abs(bumps).max() <= 1e-6
 
 
-def test_auto_threshold_and_override(cylinder, monkeypatch):
+def test_auto_threshold_and_override(cylinder):
     _, model = deform(cylinder, BEND)
     assert model.report()["path"] == "direct"  # 5808 vertices: below the threshold
-    monkeypatch.setattr(coarse, "MULTIRES_ABOVE", 1000)
-    _, model = deform(cylinder, BEND, coarse_vertices=1500)
+    _, model = deform(cylinder, BEND, coarse_vertices=1500, coarse_above=1000)
     assert model.report()["path"] == "multiresolution"
     _, model = deform(cylinder, BEND, multiresolution="off")
     assert model.report()["path"] == "direct"
