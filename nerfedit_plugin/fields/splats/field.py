@@ -27,6 +27,7 @@ import tyro
 
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.fields.base import Field, FieldConfig
+from nerfedit_plugin.fields.grid_field import check_trainer_config
 from nerfedit_plugin.fields.splats.deform import DeformReport, deform_model
 from nerfedit_plugin.fields.splats.files import read_splats, write_splats
 from nerfedit_plugin.fields.splats.model import SplatModel
@@ -58,7 +59,7 @@ class SplatsConfig(FieldConfig):
     factor into up to 8 along its stretched axis (the needle remedy); default: never split."""
     recipe: SplatRecipe = dataclasses.field(default_factory=SplatRecipe)
     """Training on a dataset: start, learning rates, loss, density control."""
-    train: TrainerConfig = dataclasses.field(default_factory=lambda: TrainerConfig(eval_every_seconds=60.0))
+    train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
     """Optimisation budget (``batch_rays`` and ``n_samples`` are unused: a step renders one whole training view)."""
 
     def __post_init__(self) -> None:
@@ -70,6 +71,7 @@ class SplatsConfig(FieldConfig):
         )  # fmt: skip
         if self.split_growth is not None:
             check_option(self, "split_growth", self.split_growth, 1 <= self.split_growth < math.inf, "a number >= 1")
+        check_trainer_config(self, self.train, "train.")
 
 
 class SplatsField(Field):
