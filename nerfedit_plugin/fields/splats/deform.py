@@ -38,7 +38,7 @@ from nerfedit_plugin.bending.maps import ForwardMap, Placement, PlacementMap
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.splats.model import SplatModel
 from nerfedit_plugin.fields.splats.projection import rotation_matrices
-from nerfedit_plugin.fields.splats.sh_rotation import rotate_sh
+from nerfedit_plugin.fields.splats.sh_rotation import rotate_sh, wigner_matrices
 
 MAX_CHILDREN = 8
 """At most this many children replace one stretched Gaussian."""
@@ -118,15 +118,23 @@ def _nearest_axes(vectors: torch.Tensor) -> torch.Tensor:
 
 
 def deform_model(
-    model: SplatModel, deformation: ForwardMap | PlacementMap, frame: int = 0, *, split_growth: float | None = None
+    model: SplatModel,
+    deformation: ForwardMap | PlacementMap,
+    frame: int = 0,
+    *,
+    split_growth: float | None = None,
+    kernel: str = "auto",
 ) -> tuple[SplatModel, DeformReport]:
     """``model`` moved by ``deformation`` at ``frame`` (module docstring) → ``(model in its dtype, report)``; with
     ``split_growth``, stretched Gaussians are split (children appended after the model's Gaussians, the first child
-    in its parent's place)."""
+    in its parent's place). ``kernel``: ``"numba"`` (``"auto"``: compiled, the polar rotation and Wigner matrices
+    once per distinct ``F``) or ``"torch"`` (the reference, per Gaussian)."""
+    if kernel not in ("auto", "numba", "torch"):
+        raise ValueError(f"kernel must be 'auto', 'numba' or 'torch', got {kernel!r}")
     dtype, count = model.means.dtype, len(model)
     placed = _placement(deformation, torch.from_numpy(np.ascontiguousarray(model.means)), frame)
     source = placed.source.cpu().numpy()
-    kept = len(np.unique(source))
+    kept = int(np.count_nonzero(np.bincount(source, minlength=count)))
     out = SplatModel(*(a[source] for a in model.arrays()))  # fresh arrays, updated in place below
     means = torch.from_numpy(out.means)
     points, gradient = placed.points.cpu(), placed.gradient.cpu()
@@ -135,29 +143,74 @@ def deform_model(
     report = DeformReport(count, len(source), count - kept, len(source) - kept, len(rows))
     if len(rows) == 0:
         return out, report
-    f = gradient.index_select(0, rows).double()
+    index = rows.numpy()
+    out.means[index] = points.index_select(0, rows).numpy()
+    move = _move_torch if kernel == "torch" else _move_compiled
+    growth = move(out, index, gradient.index_select(0, rows), report)
+    report.growth = {"max": float(growth.max()), "p99": float(np.percentile(growth.numpy(), 99))}
+    if split_growth is not None:
+        out = _split(out, index, growth, split_growth, report)
+    return out.astype(dtype), report
+
+
+def _move_torch(model: SplatModel, index: np.ndarray, f: torch.Tensor, report: DeformReport) -> torch.Tensor:
+    """Gaussians ``index`` of ``model`` given gradients ``f (P,3,3)``: quaternions, log-scales and SH updated in place
+    (module docstring), per Gaussian in torch → their anisotropy growth ``(P,)``."""
+    f = f.double()
     rotation, inverted = polar_rotations(f)
     report.inverted = int(inverted.sum())
     stretch = rotation.transpose(1, 2) @ f  # U = Rᵀ F
-    index = rows.numpy()
-    quats = torch.from_numpy(out.quats[index]).double()
-    scales = torch.exp(torch.from_numpy(out.log_scales[index]).double())
+    quats = torch.from_numpy(model.quats[index]).double()
+    scales = torch.exp(torch.from_numpy(model.log_scales[index]).double())
     axes = rotation_matrices(quats)
     local = axes.transpose(1, 2) @ stretch @ axes * scales[:, None, :]  # B = R_qᵀ U R_q S: C = B Bᵀ
     covariance = local @ local.transpose(1, 2)
     q = _nearest_axes(torch.linalg.eigh(covariance).eigenvectors)
     values = (q.transpose(1, 2) @ covariance @ q).diagonal(dim1=1, dim2=2)
     new_scales = values.clamp_min(torch.finfo(torch.float64).tiny).sqrt()
-    new_axes = rotation @ axes @ q
-    growth = (new_scales.amax(1) / new_scales.amin(1)) / (scales.amax(1) / scales.amin(1))
-    report.growth = {"max": float(growth.max()), "p99": float(torch.quantile(growth, 0.99))}
-    out.means[index] = points.index_select(0, rows).numpy()
-    out.quats[index] = matrix_quaternions(new_axes).numpy()
-    out.log_scales[index] = torch.log(new_scales).numpy()
-    out.sh[index] = rotate_sh(torch.from_numpy(out.sh[index]).double(), rotation).numpy()
-    if split_growth is not None:
-        out = _split(out, index, new_axes, new_scales, growth, split_growth, report)
-    return out.astype(dtype), report
+    model.quats[index] = matrix_quaternions(rotation @ axes @ q).numpy()
+    model.log_scales[index] = torch.log(new_scales).numpy()
+    model.sh[index] = rotate_sh(torch.from_numpy(model.sh[index]).double(), rotation).numpy()
+    return (new_scales.amax(1) / new_scales.amin(1)) / (scales.amax(1) / scales.amin(1))
+
+
+def _move_compiled(model: SplatModel, index: np.ndarray, f: torch.Tensor, report: DeformReport) -> torch.Tensor:
+    """:func:`_move_torch` with the polar rotations and Wigner matrices computed once per distinct gradient (``F`` is
+    constant per tet) and the per-Gaussian work in one compiled pass (:mod:`._deform_kernel`)."""
+    from nerfedit_plugin.fields.splats._deform_kernel import move_gaussians
+    from nerfedit_plugin.geometry.launch import launch
+
+    table, piece = _pieces(f.numpy())
+    rotation, inverted = polar_rotations(torch.from_numpy(table))
+    report.inverted = int(inverted.numpy()[piece].sum())
+    stretch = rotation.transpose(1, 2) @ torch.from_numpy(table)
+    wigner = wigner_matrices(rotation, 3)
+    moved = [np.ascontiguousarray(a[index], dtype=np.float64) for a in (model.quats, model.log_scales, model.sh)]
+    growth = np.empty(len(index))
+    tables = (np.ascontiguousarray(a) for a in (rotation, stretch, *wigner))
+    launch(move_gaussians, piece, *tables, *moved, growth)
+    model.quats[index], model.log_scales[index], model.sh[index] = moved
+    return torch.from_numpy(growth)
+
+
+def _pieces(gradients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``gradients (P,3,3)`` float → ``(distinct (D,3,3) float64, piece (P,))`` with ``gradients == distinct[piece]``:
+    rows grouped by a 64-bit hash of their bits (splitmix64 of each entry, folded), checked, and grouped exactly
+    where a hash collided."""
+    flat = np.ascontiguousarray(gradients.reshape(len(gradients), 9))
+    bits = flat.view(np.uint32 if flat.dtype == np.float32 else np.uint64).astype(np.uint64)
+    hashed = np.zeros(len(flat), dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for k in range(9):
+            x = bits[:, k] + np.uint64(0x9E3779B97F4A7C15 * (k + 1) % 2**64)
+            x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+            x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+            hashed = (hashed ^ x ^ (x >> np.uint64(31))) * np.uint64(0x100000001B3)
+    _, first, piece = np.unique(hashed, return_index=True, return_inverse=True)
+    distinct = flat[first]
+    if not np.array_equal(distinct[piece], flat):
+        distinct, piece = np.unique(flat, axis=0, return_inverse=True)
+    return distinct.reshape(-1, 3, 3).astype(np.float64), piece.reshape(-1)
 
 
 def _placement(deformation: ForwardMap | PlacementMap, means: torch.Tensor, frame: int) -> Placement:
@@ -171,16 +224,10 @@ def _placement(deformation: ForwardMap | PlacementMap, means: torch.Tensor, fram
 
 
 def _split(
-    model: SplatModel,
-    index: np.ndarray,
-    axes: torch.Tensor,
-    scales: torch.Tensor,
-    growth: torch.Tensor,
-    limit: float,
-    report: DeformReport,
+    model: SplatModel, index: np.ndarray, growth: torch.Tensor, limit: float, report: DeformReport
 ) -> SplatModel:
-    """``model`` with its moved Gaussians ``index`` (deformed ``axes``, ``scales``, anisotropy ``growth``) above
-    ``limit`` split (module docstring)."""
+    """``model`` with its moved Gaussians ``index`` (anisotropy ``growth``) above ``limit`` split (module
+    docstring)."""
     counts = torch.clamp(torch.ceil(math.sqrt(2.0) * growth / limit), 1, MAX_CHILDREN).to(torch.int64)
     counts = torch.where(growth > limit, counts.clamp_min(2), 1)
     chosen = torch.nonzero(counts > 1).squeeze(1)
@@ -188,9 +235,11 @@ def _split(
     if len(chosen) == 0:
         return model
     parents, k = index[chosen.numpy()], counts.index_select(0, chosen)
-    longest = scales.index_select(0, chosen).argmax(1)
-    sigma = scales.index_select(0, chosen).gather(1, longest[:, None]).squeeze(1)
-    direction = axes.index_select(0, chosen).gather(2, longest[:, None, None].expand(-1, 3, 1)).squeeze(2)
+    scales = torch.exp(torch.from_numpy(model.log_scales[parents]).double())
+    axes = rotation_matrices(torch.from_numpy(model.quats[parents]).double())
+    longest = scales.argmax(1)
+    sigma = scales.gather(1, longest[:, None]).squeeze(1)
+    direction = axes.gather(2, longest[:, None, None].expand(-1, 3, 1)).squeeze(2)
     kf = k.double()
     delta = torch.sqrt(12.0 * (1.0 - 2.0 / kf**2) / (kf**2 - 1.0))
     parent = torch.repeat_interleave(torch.arange(len(chosen)), k)
