@@ -19,11 +19,14 @@ smallest singular value removed), while ``Σ' = F Σ Fᵀ`` is kept exact. They 
 inverted`). Gaussians outside the proxy, or in tets that do not move, are kept bit for bit.
 
 Needles: a strong stretch grows a Gaussian's anisotropy, ``g = (σ'_max/σ'_min) / (σ_max/σ_min)``. With
-``split_growth`` set, a moved Gaussian with ``g > split_growth`` is replaced by ``k = min(⌈√2 g / split_growth⌉,
-MAX_CHILDREN)`` children along its deformed longest axis ``e``: means ``μ' + t_j σ'_max e``, ``t_j = δ (j − (k−1)/2)``,
-that axis's scale ``√2 σ'_max / k``, ``δ = √(12 (1 − 2/k²) / (k² − 1))``, everything else as the parent's. The equal
-mixture of the children has the parent's mean and covariance exactly; neighbours overlap at 2–2.5 of their scales,
-so the row has no gaps.
+``split_growth`` set, a rest Gaussian whose mapped ``g`` (its largest over its places) exceeds ``split_growth`` is
+split in rest space into ``k = min(⌈√2 g / split_growth⌉, MAX_CHILDREN)`` children along ``u = F⁻¹ e``, the rest
+direction that ``F`` maps onto the deformed longest axis ``e`` (deformed scale ``σ'``): means ``μ + t_j σ' u``,
+``t_j = δ (j − (k−1)/2)``, ``δ = √(12 (1 − 2/k²) / (k² − 1))``, covariance ``Σ − (1 − 2/k²) σ'² u uᵀ``, everything
+else as the parent's; then the children are mapped, each through its own tet, so a chain of them follows a bend
+that one Gaussian could not. The equal mixture of the children has the parent's rest mean and covariance exactly
+(so, under one ``F``, its deformed ones too); along ``e`` each child's deformed scale is ``√2 σ' / k`` and neighbours
+overlap at 2–2.5 of it, so the chain has no gaps.
 """
 
 from __future__ import annotations
@@ -47,10 +50,10 @@ _PERMUTATIONS = torch.tensor([[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0,
 
 @dataclass
 class DeformReport:
-    """What :func:`deform_model` did: Gaussians in, placed (out, before splitting), removed (placed nowhere), copied
-    (placements beyond a Gaussian's first), moved (in a moving tet), in inverted tets, split into children (parents,
-    children added), and the anisotropy growth ``g`` of the moved ones (max and 99th percentile; 1 when none
-    moved)."""
+    """What :func:`deform_model` did: Gaussians in; placed (Gaussians out); removed (rest Gaussians placed nowhere);
+    copied (placements beyond a Gaussian's first); moved (out, in a moving tet); in inverted tets; split (rest
+    Gaussians split) into children (added); the anisotropy growth ``g`` of the moved ones before any split (max and
+    99th percentile; 1 when none moved)."""
 
     gaussians: int = 0
     placed: int = 0
@@ -126,11 +129,33 @@ def deform_model(
     kernel: str = "auto",
 ) -> tuple[SplatModel, DeformReport]:
     """``model`` moved by ``deformation`` at ``frame`` (module docstring) → ``(model in its dtype, report)``; with
-    ``split_growth``, stretched Gaussians are split (children appended after the model's Gaussians, the first child
-    in its parent's place). ``kernel``: ``"numba"`` (``"auto"``: compiled, the polar rotation and Wigner matrices
-    once per distinct ``F``) or ``"torch"`` (the reference, per Gaussian)."""
+    ``split_growth``, stretched Gaussians are split first (their children come after the model's Gaussians, the first
+    child in its parent's place; the report's ``growth`` is the one measured before splitting). ``kernel``:
+    ``"numba"`` (``"auto"``: compiled, the polar rotation and Wigner matrices once per distinct ``F``) or
+    ``"torch"`` (the reference, per Gaussian)."""
     if kernel not in ("auto", "numba", "torch"):
         raise ValueError(f"kernel must be 'auto', 'numba' or 'torch', got {kernel!r}")
+    out, report, moved = _deform(model, deformation, frame, kernel)
+    if split_growth is None or report.moved == 0 or report.growth["max"] <= split_growth:
+        return out, report
+    source, gradient, growth = moved
+    worst = np.zeros(len(model))  # each rest Gaussian's largest growth over its places, and that place's F
+    np.maximum.at(worst, source, growth)
+    chosen = np.nonzero(worst > split_growth)[0]
+    at = np.full(len(model), -1)
+    at[source[growth == worst[source]]] = np.nonzero(growth == worst[source])[0]
+    split = _split(model, chosen, gradient[at[chosen]], worst[chosen], split_growth)
+    out, after, _ = _deform(split, deformation, frame, kernel)
+    after.gaussians, after.split, after.children = len(model), len(chosen), len(split) - len(model)
+    after.removed, after.growth = report.removed, report.growth
+    return out, after
+
+
+def _deform(
+    model: SplatModel, deformation: ForwardMap | PlacementMap, frame: int, kernel: str
+) -> tuple[SplatModel, DeformReport, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`deform_model` without splitting → ``(model, report, (source, F, growth))`` of the moved Gaussians:
+    the rest Gaussian each is of, its gradient ``(P,3,3)`` float64 and its anisotropy growth."""
     dtype, count = model.means.dtype, len(model)
     placed = _placement(deformation, torch.from_numpy(np.ascontiguousarray(model.means)), frame)
     source = placed.source.cpu().numpy()
@@ -141,16 +166,13 @@ def deform_model(
     eye = torch.eye(3, dtype=gradient.dtype)
     rows = torch.nonzero((points.to(means) != means).any(1) | (gradient != eye).flatten(1).any(1)).squeeze(1)
     report = DeformReport(count, len(source), count - kept, len(source) - kept, len(rows))
+    index, f = rows.numpy(), gradient.index_select(0, rows)
     if len(rows) == 0:
-        return out, report
-    index = rows.numpy()
+        return out, report, (source[index], f.double().numpy(), np.ones(0))
     out.means[index] = points.index_select(0, rows).numpy()
-    move = _move_torch if kernel == "torch" else _move_compiled
-    growth = move(out, index, gradient.index_select(0, rows), report)
-    report.growth = {"max": float(growth.max()), "p99": float(np.percentile(growth.numpy(), 99))}
-    if split_growth is not None:
-        out = _split(out, index, growth, split_growth, report)
-    return out.astype(dtype), report
+    growth = (_move_torch if kernel == "torch" else _move_compiled)(out, index, f, report).numpy()
+    report.growth = {"max": float(growth.max()), "p99": float(np.percentile(growth, 99))}
+    return out.astype(dtype), report, (source[index], f.double().numpy(), growth)
 
 
 def _move_torch(model: SplatModel, index: np.ndarray, f: torch.Tensor, report: DeformReport) -> torch.Tensor:
@@ -223,38 +245,37 @@ def _placement(deformation: ForwardMap | PlacementMap, means: torch.Tensor, fram
     raise NerfEditError(f"a {type(deformation).__name__} moves no primitives (no forward map: to_deformed or place)")
 
 
-def _split(
-    model: SplatModel, index: np.ndarray, growth: torch.Tensor, limit: float, report: DeformReport
-) -> SplatModel:
-    """``model`` with its moved Gaussians ``index`` (anisotropy ``growth``) above ``limit`` split (module
-    docstring)."""
-    counts = torch.clamp(torch.ceil(math.sqrt(2.0) * growth / limit), 1, MAX_CHILDREN).to(torch.int64)
-    counts = torch.where(growth > limit, counts.clamp_min(2), 1)
-    chosen = torch.nonzero(counts > 1).squeeze(1)
-    report.split = len(chosen)
-    if len(chosen) == 0:
-        return model
-    parents, k = index[chosen.numpy()], counts.index_select(0, chosen)
-    scales = torch.exp(torch.from_numpy(model.log_scales[parents]).double())
-    axes = rotation_matrices(torch.from_numpy(model.quats[parents]).double())
-    longest = scales.argmax(1)
-    sigma = scales.gather(1, longest[:, None]).squeeze(1)
-    direction = axes.gather(2, longest[:, None, None].expand(-1, 3, 1)).squeeze(2)
-    kf = k.double()
+def _split(model: SplatModel, chosen: np.ndarray, f: np.ndarray, growth: np.ndarray, limit: float) -> SplatModel:
+    """``model`` with the rest Gaussians ``chosen``, mapped by gradients ``f (C,3,3)`` with anisotropy ``growth``,
+    split in rest space (module docstring): the first child in its parent's place, the others appended."""
+    k = np.clip(np.ceil(math.sqrt(2.0) * growth / limit), 2, MAX_CHILDREN).astype(np.int64)
+    quats = torch.from_numpy(model.quats[chosen]).double()
+    scales = torch.exp(torch.from_numpy(model.log_scales[chosen]).double())
+    axes = rotation_matrices(quats) * scales[:, None, :]
+    covariance = axes @ axes.transpose(1, 2)
+    gradient = torch.from_numpy(f)
+    values, vectors = torch.linalg.eigh(gradient @ covariance @ gradient.transpose(1, 2))
+    sigma, longest = values[:, -1].clamp_min(0).sqrt(), vectors[:, :, -1]
+    u = torch.linalg.solve(gradient, longest)  # F⁻¹ e
+    kf = torch.from_numpy(k).double()
+    child = covariance - ((1.0 - 2.0 / kf**2) * sigma**2)[:, None, None] * u[:, :, None] * u[:, None, :]
+    values, vectors = torch.linalg.eigh(child)
+    vectors = vectors * torch.where(torch.linalg.det(vectors) < 0, -1.0, 1.0).to(vectors.dtype)[:, None, None]
     delta = torch.sqrt(12.0 * (1.0 - 2.0 / kf**2) / (kf**2 - 1.0))
-    parent = torch.repeat_interleave(torch.arange(len(chosen)), k)
-    first = torch.cumsum(k, 0) - k
-    j = torch.arange(int(k.sum())) - first.repeat_interleave(k)
-    t = delta[parent] * (j.double() - (kf[parent] - 1.0) / 2.0)
-    means = torch.from_numpy(model.means[parents]).double()[parent] + (t * sigma[parent])[:, None] * direction[parent]
-    log_scales = torch.from_numpy(model.log_scales[parents]).double()[parent]
-    log_scales[torch.arange(len(parent)), longest[parent]] = torch.log(math.sqrt(2.0) * sigma[parent] / kf[parent])
-    source = parents[parent.numpy()]
+    parent = np.repeat(np.arange(len(chosen)), k)
+    j = torch.from_numpy(np.arange(len(parent)) - np.repeat(np.cumsum(k) - k, k)).double()
+    t = delta[parent] * (j - (kf[parent] - 1.0) / 2.0)
+    offsets = (t * sigma[parent])[:, None] * u[parent]
+    source = chosen[parent]
     children = SplatModel(
-        means.numpy(), model.quats[source], log_scales.numpy(), model.opacities[source], model.sh[source]
-    )
-    head = (j == 0).numpy()
-    for name, values in zip(("means", "quats", "log_scales", "opacities", "sh"), children.arrays()):
-        getattr(model, name)[parents] = values[head]
-    report.children = int(k.sum()) - len(chosen)
-    return SplatModel(*(np.concatenate([whole, part[~head]]) for whole, part in zip(model.arrays(), children.arrays())))
+        (torch.from_numpy(model.means[source]).double() + offsets).numpy(),
+        matrix_quaternions(vectors).numpy()[parent],
+        (0.5 * torch.log(values.clamp_min(torch.finfo(torch.float64).tiny))).numpy()[parent],
+        model.opacities[source],
+        model.sh[source],
+    ).astype(model.means.dtype)
+    head = j.numpy() == 0
+    whole = SplatModel(*(a.copy() for a in model.arrays()))
+    for mine, theirs in zip(whole.arrays(), children.arrays()):
+        mine[chosen] = theirs[head]
+    return SplatModel(*(np.concatenate([a, b[~head]]) for a, b in zip(whole.arrays(), children.arrays())))
