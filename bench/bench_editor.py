@@ -10,7 +10,11 @@
 2. ``--run RUN``: the "render" action (lift into the proxy + render at 128 px) from a view of the run's mesh, cold
    (proxy from the cache or built, lift factored, kernels compiled) and warm. Target ≤ 2 s warm.
 
-Usage: ``python bench/bench_editor.py [--run RUN]``.
+``--mesh MESH`` drags on another mesh (e.g. the 1.8M-vertex bunny of ``bench_scale.py``, which the ARAP backend edits
+on its coarse level: each move solves the coarse level and carries the fine surface, which is what is shown);
+``--deformers`` picks the backends.
+
+Usage: ``python bench/bench_editor.py [--run RUN] [--mesh MESH] [--deformers arap cage skeleton]``.
 """
 
 from __future__ import annotations
@@ -46,14 +50,14 @@ def _grab(state: EditorState, name: str) -> None:
     state.mark(False)
 
 
-def drag(name: str) -> None:
-    rest = SurfaceMesh.load("sample:bunny")
+def drag(name: str, mesh: str = "sample:bunny") -> None:
+    rest = SurfaceMesh.load(mesh)
     start = time.perf_counter()
     state = EditorState(editing_backend(name, rest, {"skeleton": SKELETON} if name == "skeleton" else {}))
     _grab(state, name)
     state.preview()  # arap: factorises for these handles (once per handle set)
     print(
-        f"{name}: bunny {rest.n_vertices} vertices, bind / factorisation + first preview "
+        f"{name}: {mesh} {rest.n_vertices} vertices, bind / factorisation + first preview "
         f"{time.perf_counter() - start:.2f} s"
     )
     shown = _mesh(state.deformed, rest.faces, (0.7, 0.7, 0.7))
@@ -136,9 +140,11 @@ def render(run_path: str) -> None:
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", help="a trained run with mesh.ply (render action)")
+    parser.add_argument("--mesh", default="sample:bunny", help="the mesh dragged (a PLY or sample:NAME)")
+    parser.add_argument("--deformers", nargs="+", default=["arap", "cage", "skeleton"], help="the backends dragged")
     args = parser.parse_args()
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    for name in ("arap", "cage", "skeleton"):
-        drag(name)
+    for name in args.deformers:
+        drag(name, args.mesh)
     if args.run:
         render(args.run)

@@ -31,7 +31,7 @@ from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.geometry.multires import MultiresArap, rigid_fit
+from nerfedit_plugin.geometry.multires import MultiresArap, coarse_level, rigid_fit
 from nerfedit_plugin.timing import Span
 
 PREVIEW_ITERATIONS = 2
@@ -82,7 +82,11 @@ class ArapBackend(EditingBackend):
         self.iterations = iterations
         self.lock = threading.Lock()
         """Held by each solve: a settle on release (a worker thread) and the next drag's previews share the solver."""
-        self._solver: tuple[bytes, ArapSolver] | None = None
+        self._solver: tuple[bytes, ArapSolver | MultiresArap] | None = None
+        self.level = coarse_level(rest, config.coarse_vertices) if config.binds_coarse(rest) else None
+        """The coarse level a large mesh is edited on (:meth:`CoarseOptions.binds_coarse`): each preview solves it and
+        shows the fine surface it carries; None: previews solve the mesh itself."""
+        self._coarse: np.ndarray | None = None  # the coarse positions of the last preview (multiresolution)
 
     def check_handle(self, indices: np.ndarray, fixed: bool) -> None:
         if len(indices) == len(self.points):
@@ -102,43 +106,63 @@ class ArapBackend(EditingBackend):
     def posed_points(self, deformed: np.ndarray) -> np.ndarray:
         return deformed
 
-    def solver(self, indices: np.ndarray) -> ArapSolver:
-        """The ARAP solver factored for these handle vertices (kept until they change)."""
+    def solver(self, indices: np.ndarray) -> ArapSolver | MultiresArap:
+        """The ARAP solver factored for these handle vertices, of the mesh or of its coarse level (kept until they
+        change)."""
         key = indices.tobytes()
         if self._solver is None or self._solver[0] != key:
-            self._solver = (key, ArapSolver(self.points, self.faces, energy=self.config.energy, fixed=indices))
+            if self.level is None:
+                solver = ArapSolver(self.points, self.faces, energy=self.config.energy, fixed=indices)
+            else:
+                solver = MultiresArap(self.level, self.rest, indices, energy=self.config.energy)
+                self._coarse = None
+            self._solver = (key, solver)
         return self._solver[1]
 
-    def preview(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> np.ndarray:
+    def _problem(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> tuple:
+        """→ (the solver of the level solved, its targets, its current positions, the fine handles and targets)."""
         indices, targets = spec.handle_targets(self.points, self.faces)
+        solver = self.solver(indices)
+        if self.level is None:
+            return solver, targets[frame], deformed, indices, targets[frame]
+        coarse = self.level.coarse.vertices if self._coarse is None else self._coarse
+        return solver.solver, solver.coarse_targets(targets[frame][None])[0], coarse, indices, targets[frame]
+
+    def _shown(self, positions: np.ndarray, indices: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """The solved level's positions → the mesh's: themselves, or the fine surface the coarse level carries
+        (:meth:`MultiresArap.surface`)."""
+        if self.level is None:
+            return positions
+        self._coarse = positions
+        return self._solver[1].surface(positions, targets)[0]
+
+    def preview(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> np.ndarray:
         with self.lock:
-            result = self.solver(indices).solve(
-                targets[frame],
-                initial=deformed,
-                max_iterations=self.iterations,
-                tolerance=self.config.tolerance,
-                anderson=0,
+            solver, targets, start, indices, fine_targets = self._problem(spec, frame, deformed)
+            result = solver.solve(
+                targets, initial=start, max_iterations=self.iterations, tolerance=self.config.tolerance, anderson=0
             )
+            shown = self._shown(result.vertices, indices, fine_targets)
         self.last_iterations = result.iterations
-        return result.vertices
+        return shown
 
     def converge(self, spec, frame, deformed, wanted):
-        indices, targets = spec.handle_targets(self.points, self.faces)
         with self.lock:
-            solver = self.solver(indices)
-            before = solver.energy(deformed)
-        x, total = deformed, 0
+            solver, targets, x, indices, fine_targets = self._problem(spec, frame, deformed)
+            before = solver.energy(x)
+        total = 0
         while total < self.config.max_iterations:
             if not wanted():
                 return None
             with self.lock:
-                result = solver.solve(
-                    targets[frame], initial=x, max_iterations=CONVERGE_CHUNK, tolerance=self.config.tolerance
-                )
+                chunk = dict(max_iterations=CONVERGE_CHUNK, tolerance=self.config.tolerance)
+                result = solver.solve(targets, initial=x, **chunk)
             x, total = result.vertices, total + result.iterations
             if result.converged:
                 break
-        return x, before, solver.energy(x), total
+        with self.lock:
+            shown = self._shown(x, indices, fine_targets)
+        return shown, before, solver.energy(x), total
 
 
 class ArapDeformer(Deformer):
@@ -190,11 +214,7 @@ class ArapDeformer(Deformer):
                     start = self.level.coarse.vertices @ rotation.T + shift
                     coarse_targets = start[self.multires.fixed]
                 result = self.multires.solve(coarse_targets, initial=start, callback=span.iterations(), **options)
-                positions = self.multires.fine(result.vertices)
-                stray = ~self.rest.referenced()
-                positions[stray] = self.rest.vertices[stray]  # in no face: as the direct solve leaves them
-                gap = np.linalg.norm(positions[self.handles] - targets, axis=1).max(initial=0.0)
-                positions[self.handles] = targets
+                positions, gap = self.multires.surface(result.vertices, targets)
                 self.frame_reports.append(self._frame_report(result, gap / self.rest.bbox_diagonal))
             span.end(f"{result.iterations} iteration{'s' * (result.iterations != 1)}")
             self.results.append(result)

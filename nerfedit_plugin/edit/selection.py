@@ -122,16 +122,15 @@ def parse_selection(obj: Any, source: str, key: str, base_dir: Path) -> Selectio
         )
     if kind == "component":
         return Selection(kind, _parse_component(value, source, key), key)
-    if (
-        not isinstance(value, list)
-        or not value
-        or not all(isinstance(i, int) and not isinstance(i, bool) for i in value)
-    ):
+    if not isinstance(value, list) or not value or not set(map(type, value)) <= {int}:
         raise spec_error(source, key, "expected a non-empty list of integer vertex indices")
-    big = next((i for i in value if not -(2**63) <= i < 2**63), None)
+    big = next((i for i in (min(value), max(value)) if not -(2**63) <= i < 2**63), None)
     if big is not None:
         raise spec_error(source, key, f"index {big} out of range")
-    return Selection(kind, {"indices": np.unique(np.asarray(value, dtype=np.int64))}, key)
+    indices = np.asarray(value, dtype=np.int64)
+    if not np.all(indices[1:] > indices[:-1]):  # a sorted list of distinct indices (the editor's) is kept as it is
+        indices = np.unique(indices)
+    return Selection(kind, {"indices": indices}, key)
 
 
 def _parse_component(value: Any, source: str, key: str) -> dict:

@@ -162,9 +162,11 @@ class MultiresArap:
             fixed |= (held > 0) & ~anchored_parts[level.parts]
             self.fixed = np.flatnonzero(fixed)
             self._partial = self.fixed[held[self.fixed] < members[self.fixed]]
+        self._pairs = self._neighbourhood(self._partial)
+        self._stray = ~rest.referenced()  # vertices of no face
         handled = np.zeros(n, dtype=bool)
         handled[level.parts[owner[self.handles]]] = True
-        loose = ~handled[level.parts[owner]] & rest.referenced()
+        loose = ~handled[level.parts[owner]] & ~self._stray
         if loose.any():
             vertex = int(np.flatnonzero(loose)[0])
             raise NerfEditError(
@@ -203,7 +205,7 @@ class MultiresArap:
         if len(self._partial):
             rows = np.searchsorted(self.fixed, self._partial)
             for f, frame in enumerate(moves):
-                out[f, rows] = self.level.coarse.vertices[self._partial] + self._similar(frame, self._partial)
+                out[f, rows] = self.level.coarse.vertices[self._partial] + self._similar(frame)
         return out
 
     def _neighbourhood(self, clusters: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -223,14 +225,14 @@ class MultiresArap:
         pairs = (ring[clusters] @ holds).tocoo()
         return pairs.row.astype(np.int64), pairs.col.astype(np.int64)
 
-    def _similar(self, moves: np.ndarray, clusters: np.ndarray) -> np.ndarray:
-        """moves (H,3), the fine handles' displacements → (len(clusters),3): per cluster, the displacement at the
-        coarse vertex of the similarity ``q ↦ t̄ + s R (q − q̄)`` fitted in least squares (Umeyama) to the handle
-        members of the cluster and of its coarse neighbours (:meth:`_neighbourhood`): their offsets ``q`` from the
-        coarse vertex and their targets ``t``; the mean displacement where the offsets do not span a plane (the
-        rotation is not determined)."""
-        level = self.level
-        row, member = self._neighbourhood(clusters)
+    def _similar(self, moves: np.ndarray) -> np.ndarray:
+        """moves (H,3), the fine handles' displacements → (P,3) for the P partly held clusters: per cluster, the
+        displacement at the coarse vertex of the similarity ``q ↦ t̄ + s R (q − q̄)`` fitted in least squares
+        (Umeyama) to the handle members of the cluster and of its coarse neighbours (:meth:`_neighbourhood`): their
+        offsets ``q`` from the coarse vertex and their targets ``t``; the mean displacement where the offsets do not
+        span a plane (the rotation is not determined)."""
+        level, clusters = self.level, self._partial
+        row, member = self._pairs
         u = moves[member]
         q = self.rest.vertices[self.handles[member]] - level.coarse.vertices[clusters[row]]
         t = q + u  # targets relative to the coarse vertex
@@ -270,6 +272,16 @@ class MultiresArap:
             moved[self._carried] = moved[c] + turned
             rotations[self._carried] = rotations[c]
         return carry(self.level, self.rest.vertices, moved, rotations)
+
+    def surface(self, coarse_positions: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, float]:
+        """Deformed coarse vertices (C,3), the fine handles' targets (H,3) → ``(fine (V,3), gap)``: the carried surface
+        (:meth:`fine`) with the handle vertices set to their targets and vertices of no face at rest (as the direct
+        solve leaves them); ``gap`` is the largest distance of a carried handle vertex to its target."""
+        positions = self.fine(coarse_positions)
+        positions[self._stray] = self.rest.vertices[self._stray]
+        gap = float(np.linalg.norm(positions[self.handles] - targets, axis=1).max(initial=0.0))
+        positions[self.handles] = targets
+        return positions, gap
 
 
 def carry(level: CoarseLevel, fine: np.ndarray, moved: np.ndarray, maps: np.ndarray) -> np.ndarray:

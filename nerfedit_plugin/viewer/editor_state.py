@@ -252,8 +252,7 @@ class EditorState:
             raise NerfEditError(f"spec: no handles yet (select {self.backend.what}, mark them fixed or moving)")
         files = selection_files or {}
         selects = [
-            {"file": files[i]} if i in files else {"indices": [int(k) for k in h.indices]}
-            for i, h in enumerate(self.handles)
+            {"file": files[i]} if i in files else {"indices": h.indices.tolist()} for i, h in enumerate(self.handles)
         ]
         return {**self.backend.spec_data(self.handles, selects, folder), "frames": self.frames}
 

@@ -289,3 +289,27 @@ def test_picking_through_a_camera(bone):
     motion = camera.plane_motion(centre, 10.0, 0.0)
     moved_pixel = camera.project((centre + motion)[None])[0][0]
     assert np.allclose(moved_pixel - camera.project(centre[None])[0][0], [10.0, 0.0], atol=1e-6)
+
+
+def test_a_large_mesh_is_edited_on_its_coarse_level(bone):
+    """Multiresolution (forced here, as above the threshold): each preview solves the coarse level and shows the fine
+    surface it carries, handle vertices on their targets; the settle on release lands where the edit's own
+    multiresolution solve does."""
+    from deformers.arap import ArapConfig
+
+    config = ArapConfig(multiresolution="on", coarse_vertices=bone.n_vertices // 3)
+    state = EditorState(editing_backend("arap", bone, config=config))
+    assert state.backend.level is not None and state.backend.level.coarse.n_vertices < bone.n_vertices // 2
+    fixed, moving = _ends(bone)
+    state.select(fixed)
+    state.mark(True)
+    state.select(moving)
+    state.mark(False)
+    state.translate([0.0, 0.1 * bone.bbox_diagonal, 0.0])
+    preview = state.preview()
+    indices, targets = state.targets()
+    assert preview.shape == bone.vertices.shape and np.array_equal(preview[indices], targets[0])
+    converged, before, after, _ = state.converge()
+    assert after < before and np.array_equal(converged[indices], targets[0])
+    settled = state.settle()[0]
+    assert np.abs(converged - settled).max() < 1e-3 * bone.bbox_diagonal
