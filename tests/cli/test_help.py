@@ -72,7 +72,7 @@ def test_literal_plugin_flags_still_parse():
 def test_only_folder_writers_take_load_config():
     for name in COMMANDS:
         records = command(name).records
-        assert records == (name in ("train", "edit", "render", "generate", "demo")), name
+        assert records == (name in ("train", "edit", "render", "export", "generate", "demo")), name
         assert hasattr(parse(command(name), _required(name)), "load_config") == records
 
 
@@ -82,6 +82,7 @@ def _required(name: str) -> list[str]:
         "extract": ["--run", "r"],
         "edit": ["--edit", "e", "--out", "o"],
         "render": ["--run", "r", "--cameras", "c", "--out", "o"],
+        "export": ["--run", "r", "--out", "o"],
         "eval": ["--pred", "p", "--gt", "g"],
         "generate": ["--out", "o"],
         "process": ["--video", "v.mp4", "--out", "o"],
