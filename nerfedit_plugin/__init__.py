@@ -47,6 +47,7 @@ _API = {
     # bending and rendering
     "BackwardMap": "bending.maps",
     "ForwardMap": "bending.maps",
+    "PlacementMap": "bending.maps",
     "DeformationField": "bending.deformation_field",
     "SceneDeformation": "bending.scene_deformation",
     "load_deformation": "bending.scene_deformation",
@@ -58,6 +59,7 @@ _API = {
     "open_run": "pipeline.run",
     "train_run": "pipeline.train",
     "extract_mesh": "pipeline.extract",
+    "export_run": "pipeline.export",
     "save_field": "fields.checkpoint",
     "load_field": "fields.checkpoint",
     # metrics
@@ -85,7 +87,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.bending.deformation_field import DeformationField
-    from nerfedit_plugin.bending.maps import BackwardMap, ForwardMap
+    from nerfedit_plugin.bending.maps import BackwardMap, ForwardMap, PlacementMap
     from nerfedit_plugin.bending.scene_deformation import SceneDeformation, load_deformation
     from nerfedit_plugin.config import InstantiateConfig
     from nerfedit_plugin.data.cameras import Cameras
@@ -101,6 +103,7 @@ if TYPE_CHECKING:  # static analysers and IDEs see the eager imports
     from nerfedit_plugin.fields.checkpoint import load_field, save_field
     from nerfedit_plugin.geometry.mesh import SurfaceMesh
     from nerfedit_plugin.pipeline.edit import EditFolder, run_edit
+    from nerfedit_plugin.pipeline.export import export_run
     from nerfedit_plugin.pipeline.extract import extract_mesh
     from nerfedit_plugin.pipeline.run import Run, open_run
     from nerfedit_plugin.pipeline.train import train_run
