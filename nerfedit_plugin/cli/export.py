@@ -57,6 +57,8 @@ def export(args: ExportArgs) -> None:
         moved, detail = entry.get("deformation"), ""
         if moved is not None:
             detail = f", {moved['moved']} moved ({moved['inverted']} in inverted tets)"
+            for key, what in (("removed", "removed"), ("copied", "copies")):
+                detail += f", {moved[key]} {what}" if moved[key] else ""
             detail += f", anisotropy growth up to {moved['growth']['max']:.2f}"
             if moved["split"]:
                 detail += f", {moved['split']} split into {moved['split'] + moved['children']}"
