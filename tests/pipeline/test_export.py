@@ -2,6 +2,7 @@
 a new run that renders the same pixels as the edited run, and bad requests are one clear error."""
 
 import json
+from types import SimpleNamespace
 
 import imageio.v3 as iio
 import numpy as np
@@ -165,3 +166,15 @@ def test_bad_exports_are_one_clear_error(edited, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "a 'mesh' run has no primitives to export" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
+
+
+def test_an_export_that_would_not_fit_on_the_disk_stops_after_the_first_file(edited, tmp_path, monkeypatch, capsys):
+    root, _ = edited
+    from nerfedit_plugin.pipeline import export
+
+    monkeypatch.setattr(export.shutil, "disk_usage", lambda path: SimpleNamespace(free=1000))
+    npz = str(root / "deformation.npz")
+    assert main(["export", "--run", str(root / "run"), "--deformation", npz, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "export: 2 files of" in err and "0.00 GB free" in err and "--frame" in err
+    assert list(tmp_path.iterdir()) == []  # nothing left behind
