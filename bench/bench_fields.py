@@ -3,12 +3,12 @@ mesh, on a set of scenes each hard in its own way (:mod:`nerfedit_plugin.data.sh
 a tilted slab's flat faces, the bunny, and the bunny with a ~4-px texture.
 
     python bench/bench_fields.py [--scenes tube,cup] [--fields nerf,neus,splats] [--seconds S] [--clock {wall,cpu}]
-                                 [--resolution PX] [--out DIR] [--set neus.eikonal_weight=1e-4 ...]
+                                 [--resolution PX] [--threads N] [--out DIR] [--set neus.eikonal_weight=1e-4 ...]
     python bench/bench_fields.py --scene [--resolution 100] [--fields ...] [--seconds S] [--clock ...] [--set ...]
 
 Each scene is generated at 100×100 (``--resolution``; 50 train / 10 test views, white background, as
 ``bench/bench_train.py``) and each field trained with its default config for S seconds (default 300, the budget of the
-targets) on 2 threads (``splats`` trains on one, its default ``recipe.threads``);
+targets) on 2 threads (``--threads``; ``splats`` trains on its ``recipe.threads``, default 1);
 the figure is the PSNR over all test views at the end of the budget (curve: every 60 s), with the steps and training
 seconds actually used. The in-run reference is the exact ``mesh`` field of the source mesh rendered one ray per
 pixel (what the images' edge anti-aliasing costs a field rendered that way). For ``neus`` the Chamfer distance of
@@ -219,6 +219,13 @@ def write_docs(text: str, scene: bool = False) -> None:
     write_text(DOCS, f"{head}{begin_marker}\n{text}\n{end_marker}{tail}")
 
 
+def backgrounds(name: str) -> tuple[str | None, ...]:
+    """The background variants of ``--scene`` for field ``name``: :data:`BACKGROUNDS`, or only its defaults (None)
+    for a field without a ``background`` option (``splats``: the Gaussians are the background)."""
+    options = {f.name for f in dataclasses.fields(BACKENDS[name])}
+    return BACKGROUNDS if "background" in options else (None,)
+
+
 def run_scene(args, fields: list[str]) -> None:
     """``--scene``: generate the scene, train every field with each of :data:`BACKGROUNDS`, print (and for a
     complete run write) the table."""
@@ -235,11 +242,17 @@ def run_scene(args, fields: list[str]) -> None:
         )
         data = generate_scene(generated)
         train, test = load_dataset(data, "train"), load_dataset(data, "test")
-        rows = [measure("scene", name, data, train, test, args, bg) for name in fields for bg in BACKGROUNDS]
+        rows = [measure("scene", name, data, train, test, args, bg) for name in fields for bg in backgrounds(name)]
         (args.out / "results.json").write_text(json.dumps({"rows": rows}, indent=2))
     text = scene_table(rows)
     print(f"\n{text}")
-    if fields == list(DEFAULT_FIELDS) and args.seconds == BUDGET and args.resolution == 100 and not args.set:
+    if (
+        fields == list(DEFAULT_FIELDS)
+        and args.seconds == BUDGET
+        and args.resolution == 100
+        and args.threads == 2
+        and not args.set
+    ):
         load = os.getloadavg()
         write_docs(
             f"`python {' '.join(sys.argv)}` ({started:%Y-%m-%d %H:%M} UTC, {args.clock} clock, load average at the "
@@ -266,12 +279,13 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], help="FIELD.OPTION=VALUE config override")
     parser.add_argument("--scene", action="store_true", help="the generated scene with floor and far shell instead")
     parser.add_argument("--resolution", type=int, default=100, help="image width and height")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads (a complete run: 2)")
     args = parser.parse_args()
     scenes, fields = args.scenes.split(","), args.fields.split(",")
     unknown = sorted(set(scenes) - set(SCENES)) + sorted(set(fields) - set(BACKENDS))
     if unknown:
         parser.error(f"unknown scene or field: {', '.join(unknown)}")
-    torch.set_num_threads(2)
+    torch.set_num_threads(args.threads)
     if args.scene:
         run_scene(args, fields)
         return
@@ -297,7 +311,7 @@ def main() -> None:
     text = table(rows, references)
     print(f"\n{text}")
     complete = scenes == list(SCENES) and fields == list(DEFAULT_FIELDS) and args.seconds == BUDGET
-    complete = complete and args.resolution == 100 and not args.set
+    complete = complete and args.resolution == 100 and args.threads == 2 and not args.set
     if complete:
         load = os.getloadavg()
         write_docs(
