@@ -26,8 +26,11 @@ mesh itself (``direct``; levels up to ``--direct-up-to``) and on the coarse leve
 and with the cache the cold bind filled (warm: the coarse level is read); the last frame's mean and max distance to
 the direct bind's, in units of the bbox diagonal, and its largest displacement for scale.
 
-Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--solver [--method lbfgs anderson] | --accuracy [--coarse N]
-| --binds [--direct-up-to L]]``
+``--mesh MESH --edit SPEC`` adds the edit of another mesh to the table (e.g. a non-subdivided marching-cubes mesh:
+the demo's run extracted at 640³, ``nerfedit extract --run RUN --resolution 640``, with the demo's ``nod.json``).
+
+Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--mesh MESH --edit SPEC] [--solver [--method lbfgs
+anderson] | --accuracy [--coarse N] | --binds [--direct-up-to L]]``
 """
 
 from __future__ import annotations
@@ -178,13 +181,13 @@ def binds(levels: list[int], direct_up_to: int) -> None:
                     )
 
 
-def run_case(mesh: str, cache: str) -> None:
+def run_case(mesh: str, cache: str, edit: str) -> None:
     """One edit (the subprocess side): prints its report's figures and the peak RSS as one JSON line."""
     from deformers.arap import ArapConfig
     from nerfedit_plugin.pipeline.edit import run_edit
 
     with tempfile.TemporaryDirectory() as out:
-        report = run_edit(mesh, ArapConfig(), EDIT, Path(out) / "edit", cache_dir=cache).report
+        report = run_edit(mesh, ArapConfig(), edit, Path(out) / "edit", cache_dir=cache).report
     frame = report["per_frame"][-1]
     print(
         json.dumps(
@@ -200,8 +203,8 @@ def run_case(mesh: str, cache: str) -> None:
     )
 
 
-def measure(level: int, cache: str) -> dict:
-    command = [sys.executable, __file__, "--case", str(level_mesh(level)), "--cache", cache]
+def measure(mesh: Path, edit: Path, cache: str) -> dict:
+    command = [sys.executable, __file__, "--case", str(mesh), "--cache", cache, "--edit", str(edit)]
     done = subprocess.run(command, check=True, capture_output=True, text=True, cwd=ROOT)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -254,11 +257,13 @@ def main() -> None:
     parser.add_argument("--binds", action="store_true", help="time the skeleton and cage binds")
     parser.add_argument("--direct-up-to", type=int, default=2, help="with --binds: the last level bound directly too")
     parser.add_argument("--bind-case", help=argparse.SUPPRESS)
+    parser.add_argument("--mesh", help="also edit this mesh (e.g. a field's marching-cubes extract) with --edit")
+    parser.add_argument("--edit", default=str(EDIT), help="with --mesh: its edit spec")
     parser.add_argument("--case", help=argparse.SUPPRESS)
     parser.add_argument("--cache", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case:
-        run_case(args.case, args.cache)
+        run_case(args.case, args.cache, args.edit)
         return
     if args.bind_case:
         bind_case(args.bind_case)
@@ -281,12 +286,15 @@ def main() -> None:
         for level in args.levels:
             solver_case(level, args.method)
         return
+    cases = [(level, level_mesh(level), EDIT) for level in sorted(set(args.levels) | {ANCHOR})]
+    if args.mesh:
+        cases.append(("mesh", Path(args.mesh), Path(args.edit)))
     rows = []
-    for level in sorted(set(args.levels) | {ANCHOR}):
+    for label, mesh, edit in cases:
         with tempfile.TemporaryDirectory() as cache:
             for state in ("cold", "warm"):
-                rows.append((level, state, measure(level, cache)))
-    anchor = {state: r for level, state, r in rows if level == ANCHOR}
+                rows.append((label, state, measure(mesh, edit, cache)))
+    anchor = {state: r for label, state, r in rows if label == ANCHOR}
     print(
         "| vertices | cache | "
         + " | ".join(STAGES)
