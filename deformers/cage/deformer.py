@@ -39,7 +39,7 @@ from nerfedit_plugin.geometry.wrap import wrap_and_decimate
 
 NEAR_CAGE = 1e-4  # closer to the cage than this × its size: the exact winding number decides inside / outside
 STENCIL_STEP = 1e-4
-"""Forward-difference step of the cage map's Jacobian at the coarse vertices (multiresolution), × the cage's bbox
+"""Forward-difference step of the cage map's Jacobian at the coarse vertices (multiresolution), × the mesh's bbox
 diagonal: an affine map's differences are exact at any step; rounding costs ~1e-12 relative at this one."""
 
 
@@ -191,19 +191,25 @@ class CageDeformer(Deformer):
             raise NerfEditError(f"{edit.source}: deformed_cage and handles: give one of them, not both")
         if not (has_target or has_handles):
             raise NerfEditError(f"{edit.source}: nothing moves the cage: give 'deformed_cage' or 'handles'")
+        if cage_value == "auto" and has_target:
+            raise NerfEditError(
+                f'{edit.source}: deformed_cage: needs a cage file with the same vertex order, but cage is "auto"'
+            )
+        self.rest, self.level, self.level_cached, points = rest, None, False, rest.vertices
+        if self.config.binds_coarse(rest):  # bind the coarse vertices' stencils instead of the mesh vertices
+            level, self.level_cached = cached_coarse_level(self.bind_cache, rest, self.config.coarse_vertices)
+            if not level.is_identity:
+                self.level = level
+                points = stencil(level.coarse.vertices, STENCIL_STEP * rest.bbox_diagonal)
         if cage_value == "auto":
-            if has_target:
-                raise NerfEditError(
-                    f'{edit.source}: deformed_cage: needs a cage file with the same vertex order, but cage is "auto"'
-                )
             label = f"{edit.source}: cage: auto"
-            cage, (inside, outside) = self._auto_cage(rest, label)
+            cage, (inside, outside) = self._auto_cage(rest, points, label)
         else:
             label = f"{edit.source}: cage: {edit.path('cage')}"
             loaded = _load_cage(edit, "cage")
             cage = validate_cage(loaded, label)
             self.on_progress(0, None, "inside/outside the cage")
-            inside, outside = enclosure(rest.vertices, cage)
+            inside, outside = enclosure(points, cage)
 
         if has_target:
             target = _load_cage(edit, "deformed_cage")
@@ -223,14 +229,7 @@ class CageDeformer(Deformer):
             poses[:, idx] = targets
 
         self.rest_cage, self.deformed_cages, self._last = cage, poses, None
-        self._points, self._inside, self.rest = rest.vertices, inside, rest
-        self.level, self.level_cached = None, False
-        if self.config.binds_coarse(rest):
-            level, self.level_cached = cached_coarse_level(self.bind_cache, rest, self.config.coarse_vertices)
-            if not level.is_identity:
-                self.level = level
-                self._points = stencil(level.coarse.vertices, STENCIL_STEP * cage.bbox_diagonal)
-                self._inside = enclosure(self._points, cage)[0]
+        self._points, self._inside = points, inside
         self._weights, frames = self._evaluate(poses, keep=True)
         self._posed = (poses.copy(), self._carried(frames))
         outside = int(np.count_nonzero(outside))
@@ -240,23 +239,25 @@ class CageDeformer(Deformer):
                 if self.config.coordinates == "mvc"
                 else "Green coordinates are undefined there; they use mean value coordinates"
             )
-            warnings.warn(
-                f"{label}: {outside} of {rest.n_vertices} mesh vertices lie outside the cage ({fallback})", stacklevel=2
-            )
+            what = "mesh vertices" if self.level is None else "points bound (the coarse level's vertices and stencils)"
+            warnings.warn(f"{label}: {outside} of {len(points)} {what} lie outside the cage ({fallback})", stacklevel=2)
 
     def _mean_value(self, points: np.ndarray, cage: SurfaceMesh) -> np.ndarray:
         """Mean value coordinates ``(P, C)`` of ``points`` in ``cage``."""
         return mean_value_coordinates(points, cage.vertices, cage.faces, chunk_size=self.config.chunk_size)
 
-    def _auto_cage(self, rest: SurfaceMesh, label: str) -> tuple[SurfaceMesh, tuple[np.ndarray, np.ndarray]]:
-        """The automatic cage and the :func:`enclosure` of the mesh in it. Simplification can cut into the mesh:
-        then wrap again farther out (offset ×2, ×4) until every vertex is inside."""
+    def _auto_cage(
+        self, rest: SurfaceMesh, points: np.ndarray, label: str
+    ) -> tuple[SurfaceMesh, tuple[np.ndarray, np.ndarray]]:
+        """The automatic cage around ``rest`` and the :func:`enclosure` of the bound ``points`` (the mesh vertices or
+        the coarse level's stencils) in it. Simplification can cut into the mesh: then wrap again farther out (offset
+        ×2, ×4) until every point is inside."""
         cfg = self.config
         for attempt in range(3):
             self.on_progress(0, None, "automatic cage" + (f" (offset ×{2**attempt})" if attempt else ""))
             wrap = auto_cage(rest, cfg.auto_alpha, cfg.auto_offset * 2**attempt, cfg.auto_max_vertices)
             cage = validate_cage(wrap, label)
-            masks = enclosure(rest.vertices, cage)
+            masks = enclosure(points, cage)
             if not np.any(masks[1]):
                 break
         return cage, masks
@@ -350,7 +351,7 @@ class CageDeformer(Deformer):
         affine cage map, as the coordinates are)."""
         if self.level is None:
             return frames
-        n, step = self.level.coarse.n_vertices, STENCIL_STEP * self.rest_cage.bbox_diagonal
+        n, step = self.level.coarse.n_vertices, STENCIL_STEP * self.rest.bbox_diagonal
         out = np.empty((len(frames), self.rest.n_vertices, 3))
         for f, posed in enumerate(frames):
             centre = posed[:n]
