@@ -19,8 +19,8 @@ from nerfedit_plugin.fields.splats.rasterize import (
     MIN_ALPHA,
     TILE,
     RasterStats,
+    as_float32,
     composite,
-    float32,
     tile_lists,
 )
 from nerfedit_plugin.geometry.launch import launch
@@ -29,7 +29,7 @@ from nerfedit_plugin.geometry.launch import launch
 class _Rasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, colors, opacities, variances, depths, width, height, background, stats):
-        mu, conic, rgb, opacity = (float32(t) for t in (means2d, conics, colors, opacities))
+        mu, conic, rgb, opacity = (as_float32(t) for t in (means2d, conics, colors, opacities))
         tiles = tile_lists(
             mu, variances.detach().cpu().numpy(), opacity, depths.detach().cpu().numpy(), width, height, stats
         )

@@ -77,7 +77,8 @@ class SplatsConfig(FieldConfig):
 class SplatsField(Field):
     """``N`` Gaussians as parameters ``means (N,3)``, ``quats (N,4)`` (w x y z), ``log_scales (N,3)``, ``opacities
     (N,)`` (logits), ``sh (N,K,3)``. Build one with :meth:`from_file` or :meth:`from_model`;
-    ``SplatsConfig().setup(scene_bbox=...)`` gives an empty field that :meth:`load_state_dict` fills."""
+    ``SplatsConfig().setup(scene_bbox=...)`` gives an empty field that :meth:`load_state_dict` fills or :meth:`fit`
+    trains."""
 
     kind: ClassVar[str] = "density"
     rendering: ClassVar[str] = "primitives"

@@ -135,7 +135,7 @@ def composite(
     return image, transmittance, last
 
 
-def float32(t: torch.Tensor) -> np.ndarray:
+def as_float32(t: torch.Tensor) -> np.ndarray:
     """A contiguous float32 numpy copy of ``t`` (detached, on the CPU)."""
     return np.ascontiguousarray(t.detach().cpu().numpy(), dtype=np.float32)
 
@@ -156,7 +156,7 @@ def rasterize(
     ``(N,)`` opacities in [0, 1], ``(N,)`` view depths) → ``(image (H,W,3), transmittance (H,W))`` float32 on the
     CPU, no autograd (module docstring). ``stats`` receives the counts and stage times."""
     stats = RasterStats() if stats is None else stats
-    mu, conic, rgb, opacity = (float32(t) for t in (means2d, conics, colors, opacities))
+    mu, conic, rgb, opacity = (as_float32(t) for t in (means2d, conics, colors, opacities))
     variances, depths = variances.detach().cpu().numpy(), depths.detach().cpu().numpy()
     tiles = tile_lists(mu, variances, opacity, depths, width, height, stats)
     start = time.perf_counter()
