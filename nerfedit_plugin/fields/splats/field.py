@@ -42,8 +42,7 @@ PARAMETERS = ("means", "quats", "log_scales", "opacities", "sh")
 
 @dataclasses.dataclass
 class SplatsConfig(FieldConfig):
-    """3D Gaussian splats (INRIA layout): trained on posed images, or read from a PLY or .splat file; rasterised on
-    the CPU."""
+    """3D Gaussian splats (INRIA layout), trained on posed images or read from a PLY or .splat file."""
 
     _target: tyro.conf.Suppress[type] = dataclasses.field(default_factory=lambda: SplatsField)
     box_percentile: float = 1.0
