@@ -10,11 +10,12 @@
 2. ``--run RUN``: the "render" action (lift into the proxy + render at 128 px) from a view of the run's mesh, cold
    (proxy from the cache or built, lift factored, kernels compiled) and warm. Target ≤ 2 s warm.
 
-``--mesh MESH`` drags on another mesh (e.g. the 1.8M-vertex bunny of ``bench_scale.py``, which the ARAP backend edits
-on its coarse level: each move solves the coarse level and carries the fine surface, which is what is shown);
+``--mesh MESH`` drags on another mesh; ``--subdivisions N`` on the bunny Loop-subdivided N times (``bench_scale.py``'s
+meshes; 3: 1.8M vertices, which the ARAP backend edits on its coarse level: each move solves the coarse level and
+carries the fine surface, which is what is shown);
 ``--deformers`` picks the backends.
 
-Usage: ``python bench/bench_editor.py [--run RUN] [--mesh MESH] [--deformers arap cage skeleton]``.
+Usage: ``python bench/bench_editor.py [--run RUN] [--mesh MESH | --subdivisions N] [--deformers arap cage skeleton]``.
 """
 
 from __future__ import annotations
@@ -141,9 +142,14 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", help="a trained run with mesh.ply (render action)")
     parser.add_argument("--mesh", default="sample:bunny", help="the mesh dragged (a PLY or sample:NAME)")
+    parser.add_argument("--subdivisions", type=int, help="drag the bunny Loop-subdivided this many times")
     parser.add_argument("--deformers", nargs="+", default=["arap", "cage", "skeleton"], help="the backends dragged")
     args = parser.parse_args()
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    if args.subdivisions is not None:
+        from bench_scale import level_mesh
+
+        args.mesh = str(level_mesh(args.subdivisions))
     for name in args.deformers:
         drag(name, args.mesh)
     if args.run:
