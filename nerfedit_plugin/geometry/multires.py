@@ -162,11 +162,12 @@ class MultiresArap:
             fixed |= (held > 0) & ~anchored_parts[level.parts]
             self.fixed = np.flatnonzero(fixed)
             self._partial = self.fixed[held[self.fixed] < members[self.fixed]]
-        self._pairs = self._neighbourhood(self._partial)
-        self._stray = ~rest.referenced()  # vertices of no face
+        self._targets_map, self._similarity = self._target_weights()
+        stray = ~rest.referenced()  # vertices of no face
+        self._stray = np.flatnonzero(stray)
         handled = np.zeros(n, dtype=bool)
         handled[level.parts[owner[self.handles]]] = True
-        loose = ~handled[level.parts[owner]] & ~self._stray
+        loose = ~handled[level.parts[owner]] & ~stray
         if loose.any():
             vertex = int(np.flatnonzero(loose)[0])
             raise NerfEditError(
@@ -191,22 +192,77 @@ class MultiresArap:
     def coarse_targets(self, targets: np.ndarray) -> np.ndarray:
         """Fine handle targets (F,H,3) float64 → the coarse handles' targets (F,Hc,3) float64 (:attr:`fixed`): the
         coarse vertex plus the mean displacement of its members (all of them handles), or plus the displacement of
-        the similarity fitted to its handle members' motion (:meth:`_similar`)."""
+        the similarity fitted to its handle members' motion (:meth:`_target_weights`). Linear in the displacements
+        ``u = targets − rest`` but for the fitted rotations: one sparse product ``W u`` gives the means and the fit's
+        cross-covariances, then one 3×3 SVD per partly held cluster."""
         targets = np.asarray(targets, dtype=np.float64)
         if self.level.is_identity:
             return targets
-        owner, n = self.level.owner[self.handles], self.level.coarse.n_vertices
-        count = np.bincount(owner, minlength=n)[self.fixed][:, None]
-        base = self.level.coarse.vertices[self.fixed]
-        moves = targets - self.rest.vertices[self.handles]
-        out = np.stack(
-            [base + np.stack([np.bincount(owner, u[:, d], n)[self.fixed] for d in range(3)], 1) / count for u in moves]
-        )
+        frames, h = targets.shape[:2]
+        moves = (targets - self.rest.vertices[self.handles]).transpose(1, 0, 2).reshape(h, 3 * frames)
+        weighed = (self._targets_map @ moves).reshape(-1, frames, 3).transpose(1, 0, 2)  # (F, Hc + 4m, 3)
+        hc = len(self.fixed)
+        out = self.level.coarse.vertices[self.fixed] + weighed[:, :hc]
         if len(self._partial):
-            rows = np.searchsorted(self.fixed, self._partial)
-            for f, frame in enumerate(moves):
-                out[f, rows] = self.level.coarse.vertices[self._partial] + self._similar(frame)
+            rows, (q_mean, qq, planar, trace) = np.searchsorted(self.fixed, self._partial), self._similarity
+            m = len(self._partial)
+            for f in range(frames):
+                t_mean = q_mean + weighed[f, hc : hc + m]
+                tq = qq + weighed[f, hc + m :].reshape(3, m, 3).transpose(1, 2, 0)  # [r, a, b] = Σ t_a qc_b
+                u_svd, sigma, vt = np.linalg.svd(tq)
+                flip = np.ones((m, 3))
+                flip[:, 2] = np.sign(np.linalg.det(u_svd @ vt))
+                rotation = np.einsum("mab,mb,mbc->mac", u_svd, flip, vt)
+                scale = (sigma * flip).sum(1) / trace
+                moved = t_mean - scale[:, None] * np.einsum("mab,mb->ma", rotation, q_mean)
+                out[f, rows] = self.level.coarse.vertices[self._partial] + np.where(
+                    planar[:, None], moved, t_mean - q_mean
+                )
         return out
+
+    def _target_weights(self) -> tuple[sp.csr_matrix, tuple[np.ndarray, ...]]:
+        """What :meth:`coarse_targets` needs of the handle set, once: ``W`` (Hc + 4m, H) sparse and the fit's constant
+        terms. Rows of ``W u`` (``u`` (H,3) the handles' displacements; ``m`` partly held clusters):
+
+        - ``Hc`` rows, the mean of ``u`` over the cluster's handle members (0 for a partly held cluster);
+        - ``m`` rows, the mean ``ū`` over the handles of the cluster's neighbourhood (:meth:`_neighbourhood`);
+        - ``3m`` rows, ``Σ_p qc_pb u_p`` for b = 0, 1, 2, ``qc = q − q̄`` the handles' rest offsets ``q`` from the
+          coarse vertex, centred.
+
+        The similarity ``x ↦ t̄ + s R (x − q̄)`` (Umeyama) fitted to targets ``t = q + u`` has ``t̄ = q̄ + ū`` and the
+        cross-covariance ``Σ (t − t̄) qcᵀ = Σ qc qcᵀ + Σ u qcᵀ`` (``Σ qc = 0``); its rotation ``R = U diag(1, 1, ±1)
+        Vᵀ`` (SVD ``U Σ Vᵀ``, det R = 1), scale ``s = tr(Σ diag(1, 1, ±1)) / tr(Σ qc qcᵀ)``, and the coarse vertex
+        moves by ``t̄ − s R q̄``, or by ``t̄ − q̄`` where the offsets do not span a plane (the rotation is not
+        determined). Constants: ``(q̄ (m,3), Σ qc qcᵀ (m,3,3), planar (m,) bool, tr Σ qc qcᵀ (m,))``."""
+        level, owner, n, h = self.level, self.level.owner[self.handles], self.level.coarse.n_vertices, len(self.handles)
+        if level.is_identity:
+            return sp.csr_matrix((0, h)), ()
+        row_of = np.full(n, -1)
+        row_of[self.fixed] = np.arange(len(self.fixed))
+        full = np.ones(n, dtype=bool)
+        full[self._partial] = False
+        member = np.flatnonzero((row_of[owner] >= 0) & full[owner])
+        rows = row_of[owner[member]]
+        parts = [(rows, member, 1.0 / np.bincount(rows, minlength=len(self.fixed))[rows])]
+        clusters, m = self._partial, len(self._partial)
+        row, handle = self._neighbourhood(clusters)
+        q = self.rest.vertices[self.handles[handle]] - level.coarse.vertices[clusters[row]]
+        count = np.bincount(row, minlength=m)
+        q_mean = np.stack([np.bincount(row, q[:, d], m) for d in range(3)], 1) / count[:, None]
+        qc = q - q_mean[row]
+        qq = np.zeros((m, 3, 3))
+        for a in range(3):
+            for b in range(3):
+                qq[:, a, b] = np.bincount(row, qc[:, a] * qc[:, b], m)
+        offset = len(self.fixed)
+        parts.append((offset + row, handle, 1.0 / count[row]))
+        for b in range(3):
+            parts.append((offset + (1 + b) * m + row, handle, qc[:, b]))
+        i, j, value = (np.concatenate(x) for x in zip(*parts))
+        weights = sp.csr_matrix((value, (i, j)), shape=(offset + 4 * m, h))
+        spread = np.linalg.eigvalsh(qq)
+        planar = spread[:, 1] > 1e-6 * spread[:, 2]
+        return weights, (q_mean, qq, planar, np.maximum(np.trace(qq, axis1=1, axis2=2), 1e-300))
 
     def _neighbourhood(self, clusters: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """clusters (m,) → ``(row (P,), member (P,))`` int64: the pairs of a cluster (its row in ``clusters``) and a
@@ -225,45 +281,14 @@ class MultiresArap:
         pairs = (ring[clusters] @ holds).tocoo()
         return pairs.row.astype(np.int64), pairs.col.astype(np.int64)
 
-    def _similar(self, moves: np.ndarray) -> np.ndarray:
-        """moves (H,3), the fine handles' displacements → (P,3) for the P partly held clusters: per cluster, the
-        displacement at the coarse vertex of the similarity ``q ↦ t̄ + s R (q − q̄)`` fitted in least squares
-        (Umeyama) to the handle members of the cluster and of its coarse neighbours (:meth:`_neighbourhood`): their
-        offsets ``q`` from the coarse vertex and their targets ``t``; the mean displacement where the offsets do not
-        span a plane (the rotation is not determined)."""
-        level, clusters = self.level, self._partial
-        row, member = self._pairs
-        u = moves[member]
-        q = self.rest.vertices[self.handles[member]] - level.coarse.vertices[clusters[row]]
-        t = q + u  # targets relative to the coarse vertex
-        m = len(clusters)
-        count = np.bincount(row, minlength=m)[:, None]
-        q_mean = np.stack([np.bincount(row, q[:, d], m) for d in range(3)], 1) / count
-        t_mean = np.stack([np.bincount(row, t[:, d], m) for d in range(3)], 1) / count
-        qc, tc = q - q_mean[row], t - t_mean[row]
-        qq, tq = np.zeros((m, 3, 3)), np.zeros((m, 3, 3))
-        for a in range(3):
-            for b in range(3):
-                qq[:, a, b] = np.bincount(row, qc[:, a] * qc[:, b], m)
-                tq[:, a, b] = np.bincount(row, tc[:, a] * qc[:, b], m)
-        u_svd, sigma, vt = np.linalg.svd(tq)
-        sign = np.sign(np.linalg.det(u_svd @ vt))
-        flip = np.ones((m, 3))
-        flip[:, 2] = sign
-        rotation = np.einsum("mab,mb,mbc->mac", u_svd, flip, vt)
-        scale = (sigma * flip).sum(1) / np.maximum(np.trace(qq, axis1=1, axis2=2), 1e-300)
-        spread = np.linalg.eigvalsh(qq)
-        planar = spread[:, 1] > 1e-6 * spread[:, 2]
-        moved = t_mean - scale[:, None] * np.einsum("mab,mb->ma", rotation, q_mean)
-        return np.where(planar[:, None], moved, t_mean - q_mean)
-
     def solve(self, coarse_targets: np.ndarray, initial: np.ndarray | None = None, **options) -> ArapResult:
         """The coarse ARAP solve: coarse_targets (Hc,3), initial (C,3) or None → :class:`ArapResult` on the coarse
         level (``options``: those of :meth:`ArapSolver.solve`)."""
         return self.solver.solve(coarse_targets, initial=initial, **options)
 
-    def fine(self, coarse_positions: np.ndarray) -> np.ndarray:
-        """Deformed coarse vertices (C,3) float64 → the fine vertices (V,3) float64 they carry (module docstring)."""
+    def fine(self, coarse_positions: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Deformed coarse vertices (C,3) float64 → the fine vertices (V,3) they carry (module docstring), written
+        into ``out`` (V,3) float64 or float32 when given (computed in float64 either way), else a new float64 array."""
         moved = np.array(coarse_positions, dtype=np.float64)
         rotations = self.solver.vertex_rotations(moved)
         if len(self._carried):
@@ -271,24 +296,35 @@ class MultiresArap:
             turned = np.einsum("kab,kb->ka", rotations[c], q[self._carried] - q[c])
             moved[self._carried] = moved[c] + turned
             rotations[self._carried] = rotations[c]
-        return carry(self.level, self.rest.vertices, moved, rotations)
+        return carry(self.level, self.rest.vertices, moved, rotations, out)
 
-    def surface(self, coarse_positions: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, float]:
+    def surface(
+        self, coarse_positions: np.ndarray, targets: np.ndarray, out: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float]:
         """Deformed coarse vertices (C,3), the fine handles' targets (H,3) → ``(fine (V,3), gap)``: the carried surface
-        (:meth:`fine`) with the handle vertices set to their targets and vertices of no face at rest (as the direct
-        solve leaves them); ``gap`` is the largest distance of a carried handle vertex to its target."""
-        positions = self.fine(coarse_positions)
+        (:meth:`fine`, into ``out`` when given) with the handle vertices set to their targets and vertices of no face
+        at rest (as the direct solve leaves them); ``gap`` is the largest distance of a carried handle vertex to its
+        target."""
+        positions = self.fine(coarse_positions, out)
         positions[self._stray] = self.rest.vertices[self._stray]
-        gap = float(np.linalg.norm(positions[self.handles] - targets, axis=1).max(initial=0.0))
+        gap = float(np.sqrt(((positions[self.handles] - targets) ** 2).sum(1).max(initial=0.0)))
         positions[self.handles] = targets
         return positions, gap
 
 
-def carry(level: CoarseLevel, fine: np.ndarray, moved: np.ndarray, maps: np.ndarray) -> np.ndarray:
+def carry(
+    level: CoarseLevel, fine: np.ndarray, moved: np.ndarray, maps: np.ndarray, out: np.ndarray | None = None
+) -> np.ndarray:
     """The fine rest vertices ``fine (V,3)`` of ``level``, carried by its coarse vertices moved to ``moved (C,3)``
-    with local linear maps ``maps (C,3,3)`` (rotations, or the Jacobians of a space map) → (V,3) float64:
-    ``p'_i = Σ_c w_ic (y_k + M_k (p_i − q_k))``. Exact for a common affine map ``x ↦ A x + t`` (every ``y_k = A q_k
+    with local linear maps ``maps (C,3,3)`` (rotations, or the Jacobians of a space map) → (V,3):
+    ``p'_i = Σ_c w_ic (y_k + M_k (p_i − q_k))``, evaluated in float64 and written into ``out`` (V,3) float64 or
+    float32 when given, else a new float64 array. Exact for a common affine map ``x ↦ A x + t`` (every ``y_k = A q_k
     + t``, ``M_k = A``), since each row of weights sums to 1."""
-    out = np.empty((len(fine), 3))
-    launch(_kernel.carry, fine, level.corners, level.weights, level.coarse.vertices, moved, maps, out)
+    if out is None:
+        out = np.empty((len(fine), 3))
+    if out.shape != (len(fine), 3) or out.dtype not in (np.float32, np.float64) or not out.flags.c_contiguous:
+        raise ValueError(f"carry: out must be a C-contiguous ({len(fine)}, 3) float32 or float64 array")
+    table = np.empty((len(moved), 16))  # per coarse vertex, one row of two cache lines: y_k, M_k, q_k
+    table[:, :3], table[:, 3:12], table[:, 12:15] = moved, np.reshape(maps, (-1, 9)), level.coarse.vertices
+    launch(_kernel.carry, fine, level.corners, level.weights, table, out)
     return out

@@ -4,7 +4,8 @@
 what its handles grab, its control points), the current selection (control point indices), the handles made from
 selections (:class:`~nerfedit_plugin.edit.editing.EditorHandle`) and an undo/redo history of snapshots. Everything
 the solvers see goes through :meth:`EditorState.spec`, parsed as ``nerfedit edit`` parses the saved file, so the
-editor shows what the command will compute:
+editor shows what the command will compute (a handle's index selection is parsed, and the selections resolved
+against the control points, once per handle set: a drag changes only the active handle's transform):
 
 - :meth:`EditorState.preview` poses the mesh after a move through the backend (prefactored or bound once);
 - :meth:`EditorState.converge` finishes an iterative preview (settle on release) and reports the energy gap closed;
@@ -31,13 +32,52 @@ from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.edit.deformer import checked_frames, mesh_digest
 from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle
+from nerfedit_plugin.edit.selection import Selection, parse_selection
 from nerfedit_plugin.edit.selection_file import write_selection
-from nerfedit_plugin.edit.spec import EditSpec, load_edit_spec, parse_edit_spec
+from nerfedit_plugin.edit.spec import EditSpec, Handle, load_edit_spec, parse_edit_spec
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.io.atomic import write_text
 from nerfedit_plugin.registry import DEFORMERS, discover
 from nerfedit_plugin.viewer.backends import backend_class, editing_backend
+
+
+@dataclasses.dataclass(frozen=True)
+class ResolvedSpec(EditSpec):
+    """An :class:`EditSpec` whose :meth:`handle_targets` resolves its selections once per set of handle selections:
+    ``resolved`` (shared by the specs of one editor) keeps, for the last ``(points, faces, selections)`` (the same
+    objects), the handle points ``idx (H,)`` and per moving handle the rows it owns (the last handle listed wins) and
+    its rest pivot; each call then only applies the transforms. Equal to :meth:`EditSpec.handle_targets`."""
+
+    resolved: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+    def handle_targets(self, points: np.ndarray, faces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        selections = tuple(h.selection for h in self.handles)
+        key = self.resolved.get("key")
+        same = key is not None and key[0] is points and key[1] is faces and len(key[2]) == len(selections)
+        if not (same and all(a is b for a, b in zip(key[2], selections))):
+            if not self.handles:
+                return super().handle_targets(points, faces)
+            rest = np.asarray(points, dtype=np.float64)
+            chosen = [h.selection.indices(rest, self.source, faces) for h in self.handles]
+            owner = np.full(len(rest), -1)
+            for h, sel in enumerate(chosen):
+                owner[sel] = h
+            idx = np.flatnonzero(owner >= 0)
+            moving = [
+                (h, np.searchsorted(idx, sel[owner[sel] == h]), rest[sel].mean(0))
+                for h, sel in enumerate(chosen)
+                if self.handles[h].transform is not None
+            ]
+            self.resolved.clear()
+            self.resolved.update(key=(points, faces, selections), idx=idx, base=rest[idx], moving=moving)
+        idx, base = self.resolved["idx"], self.resolved["base"]
+        targets = np.repeat(base[None], self.frames, axis=0)
+        for h, cols, pivot in self.resolved["moving"]:
+            transform = self.handles[h].transform
+            for f, t in enumerate(self.times):
+                targets[f, cols] = transform.apply(base[cols], t, pivot)
+        return idx, targets
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +106,8 @@ class EditorState:
         self.settled: np.ndarray | None = None
         """(frames,V,3) float64 from :meth:`settle` for the handles as they are now, else None."""
         self._edges: sp.csr_matrix | None = None
+        self._selections: list[tuple[np.ndarray, Selection]] = []  # per handle: its indices array, parsed
+        self._resolved: dict = {}  # ResolvedSpec.resolved of this editor's specs
 
     @classmethod
     def open(
@@ -257,8 +299,32 @@ class EditorState:
         return {**self.backend.spec_data(self.handles, selects, folder), "frames": self.frames}
 
     def spec(self) -> EditSpec:
-        """:meth:`spec_data` parsed like a spec file (what the solvers use)."""
-        return parse_edit_spec(self.spec_data(), self.backend.spec_keys, "<editor>")
+        """:meth:`spec_data` parsed like a spec file (what the solvers use), as a :class:`ResolvedSpec`. With the
+        default spec layout (:meth:`EditingBackend.spec_data`: spec handle ``i`` is handle ``i``) each handle's
+        ``indices`` selection is parsed once while its indices array is the same object, and the rest of the spec
+        is parsed afresh; the result equals parsing :meth:`spec_data`."""
+        if not self.handles or type(self.backend).spec_data is not EditingBackend.spec_data:
+            parsed = parse_edit_spec(self.spec_data(), self.backend.spec_keys, "<editor>")
+        else:
+            first = [{"indices": [int(h.indices[0])]} for h in self.handles]  # stand-ins, replaced below
+            data = {**self.backend.spec_data(self.handles, first, None), "frames": self.frames}
+            parsed = parse_edit_spec(data, self.backend.spec_keys, "<editor>")
+            kept = self._selections[: len(self.handles)]
+            self._selections = [
+                kept[i] if i < len(kept) and kept[i][0] is h.indices else (h.indices, self._selection(i, h.indices))
+                for i, h in enumerate(self.handles)
+            ]
+            handles = tuple(
+                Handle(selection, h.transform) for (_, selection), h in zip(self._selections, parsed.handles)
+            )
+            parsed = dataclasses.replace(parsed, handles=handles)
+        fields = {f.name: getattr(parsed, f.name) for f in dataclasses.fields(EditSpec)}
+        return ResolvedSpec(**fields, resolved=self._resolved)
+
+    @staticmethod
+    def _selection(i: int, indices: np.ndarray) -> Selection:
+        """Handle ``i``'s selection of ``indices`` as :func:`parse_edit_spec` parses it from :meth:`spec_data`."""
+        return parse_selection({"indices": indices.tolist()}, "<editor>", f"handles[{i}].select", Path("."))
 
     def save(self, path: str | os.PathLike, selection_files: bool = True) -> list[Path]:
         """Write the spec to ``path`` (JSON, or YAML by suffix) and, with ``selection_files``, each handle's selection

@@ -313,3 +313,56 @@ def test_a_large_mesh_is_edited_on_its_coarse_level(bone):
     assert after < before and np.array_equal(converged[indices], targets[0])
     settled = state.settle()[0]
     assert np.abs(converged - settled).max() < 1e-3 * bone.bbox_diagonal
+
+
+def _fresh(state):
+    """The state's spec parsed afresh from its data, resolved by :meth:`EditSpec.handle_targets`."""
+    from nerfedit_plugin.edit.spec import parse_edit_spec
+
+    spec = parse_edit_spec(state.spec_data(), state.backend.spec_keys, "<editor>")
+    return spec.handle_targets(state.backend.points, state.backend.faces)
+
+
+def test_the_drag_spec_equals_the_spec_parsed_afresh(bone):
+    """The spec a drag reuses (index selections parsed, and resolved, once per handle set) gives the handle points and
+    targets of its data parsed and resolved afresh, through moves, a new handle, an overlapping one and undo."""
+    state = _state(bone)
+    fixed, moving = _ends(bone)
+    state.select(fixed)
+    state.mark(True)
+    state.select(moving)
+    state.mark(False)
+    checks = [
+        lambda: state.translate([0.01, 0.02, 0.0]),
+        lambda: state.translate([0.01, 0.0, 0.0], record=False),
+        lambda: state.rotate([0.0, 1.0, 0.0], 15.0, record=False),
+        lambda: state.scale(1.1, record=False),
+        lambda: (state.select(moving[: len(moving) // 2]), state.mark(False)),  # overlaps: the last listed wins
+        lambda: state.translate([0.0, 0.0, 0.03]),
+        lambda: state.set_frames(4),
+        state.undo,
+        state.undo,
+    ]
+    for change in checks:
+        change()
+        for _ in range(2):  # the second call reuses the resolution
+            indices, targets = state.targets()
+            expected_indices, expected_targets = _fresh(state)
+            assert np.array_equal(indices, expected_indices) and np.array_equal(targets, expected_targets)
+
+
+def test_drag_previews_on_the_coarse_level_keep_handles_exact(bone):
+    from deformers.arap import ArapConfig
+
+    config = ArapConfig(multiresolution="on", coarse_vertices=bone.n_vertices // 3)
+    state = EditorState(editing_backend("arap", bone, config=config))
+    fixed, moving = _ends(bone)
+    state.select(fixed)
+    state.mark(True)
+    state.select(moving)
+    state.mark(False)
+    for _ in range(3):
+        state.translate([0.0, 0.02 * bone.bbox_diagonal, 0.0], record=False)
+        preview = state.preview()
+        indices, targets = _fresh(state)
+        assert np.array_equal(preview[indices], targets[0])
