@@ -144,10 +144,14 @@ def surface_sample(tets_of: np.ndarray, indices: np.ndarray, budget: int) -> np.
     tets)`` whatever the surface's size."""
     if budget == 0 or len(indices) <= budget:
         return indices
+    if not np.all(indices[1:] > indices[:-1]):
+        indices = np.unique(indices)
     tets = tets_of[indices]
-    order = np.lexsort((indices, tets))
-    first = np.flatnonzero(np.r_[True, tets[order][1:] != tets[order][:-1]])
-    counts = np.diff(np.r_[first, len(order)])
+    key = tets.astype(np.uint16) if tets.max() < 2**16 else tets  # a stable sort of 16-bit keys is a radix sort
+    order = np.argsort(key, kind="stable")  # by tet, then by index
+    occupied = np.bincount(tets)
+    counts = occupied[occupied > 0]
+    first = np.r_[0, np.cumsum(counts)[:-1]]
     low, high = 1, int(counts.max())
     while low < high:  # the largest k with Σ min(count, k) ≤ budget
         k = (low + high + 1) // 2
@@ -201,7 +205,7 @@ class Lift:
     def _bind(self, proxy: TetProxy) -> None:
         """Set up the lift on ``proxy``: the embedding, and for the ARAP lifts the factored solver."""
         self.proxy = proxy
-        self.embedding = proxy.embedding_matrix()[self.surface]
+        self.embedding = proxy.embedding_matrix(self.surface)
         self.rest_volumes = tet_signed_volumes(proxy.vertices, proxy.tets)
         self.injective: InjectiveSolver | None = None  # built on the first fold
         if self.method == "tet-arap":  # the ARAP lift and the re-lift share the embedding's CᵀC
@@ -271,29 +275,35 @@ class Lift:
         )
         return result.vertices, iterations + result.iterations
 
-    def report(self, deformed: np.ndarray, surface: np.ndarray, iterations: int, seconds: float) -> FrameReport:
+    def report(
+        self, deformed: np.ndarray, surface: np.ndarray, iterations: int, seconds: float, flipped: int | None = None
+    ) -> FrameReport:
         """deformed proxy (N,3) float64, surface (V,3) float64 → the frame's :class:`FrameReport` (residual
         ``|A t' − v'|`` per surface vertex, relative to the rest bbox diagonal; inverted / degenerate tets by signed
-        volume; surface faces turned by more than 90°)."""
+        volume; surface faces turned by more than 90°: :meth:`flipped_faces`, unless given as ``flipped``)."""
         residual = self.misfit(deformed, surface)
         volumes = tet_signed_volumes(deformed, self.proxy.tets)
         tiny = 1e-9 * np.abs(self.rest_volumes).mean()
-        flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
         return FrameReport(
             residual_max=float(residual.max()),
             residual_rms=float(np.sqrt(np.mean(residual**2))),
             inverted_tets=int(np.count_nonzero(volumes < -tiny)),
             degenerate_tets=int(np.count_nonzero(np.abs(volumes) <= tiny)),
-            flipped_surface_faces=int(np.count_nonzero(flipped)),
+            flipped_surface_faces=self.flipped_faces(surface) if flipped is None else flipped,
             crossing_surface_faces=None,
             iterations=iterations,
             seconds=seconds,
         )
 
+    def flipped_faces(self, surface: np.ndarray) -> int:
+        """surface frame (V,3) float64 → the number of its triangles whose normal turned by more than 90° from rest."""
+        flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
+        return int(np.count_nonzero(flipped))
+
     def misfit(self, deformed: np.ndarray, surface: np.ndarray) -> np.ndarray:
         """deformed proxy (N,3), surface frame (V,3) float64 → (S,) float64: ``|A t' − v'|`` at each surface vertex
         (``self.surface``), relative to the rest bbox diagonal."""
-        return np.linalg.norm(self.embedding @ deformed - surface[self.surface], axis=1) / self.scale
+        return _row_norms(self.embedding @ deformed - surface[self.surface]) / self.scale
 
     def residuals(self, lifted: np.ndarray, frames: np.ndarray) -> np.ndarray:
         """lifted proxy frames (F,N,3), surface frames (F,V,3) float64 → (S,) float64: each surface vertex's worst
@@ -325,7 +335,8 @@ class Lift:
             span.at(0)
             deformed, iterations = self.frame(index, surface, previous if starts is None else starts[index], span)
             span.end(f"{iterations} iteration{'s' * (iterations != 1)}" if iterations else "")
-            reports.append(self.report(deformed, surface, iterations, time.perf_counter() - start))
+            seconds = time.perf_counter() - start
+            reports.append(self.report(deformed, surface, iterations, seconds, self._flipped[index]))
             out.append(deformed)
             previous = deformed
         return np.stack(out), reports
@@ -335,6 +346,7 @@ class Lift:
         iterations and seconds summed over the refinement rounds). Frames are warm-started from the previous frame;
         after a refinement (tet-arap), from their own lift prolonged onto the refined proxy, now ``self.proxy``."""
         frames = np.asarray(frames, dtype=np.float64)
+        self._flipped = [self.flipped_faces(surface) for surface in frames]  # of the frames alone: once for every round
         rounds = self.config.refine_rounds if self.method == "tet-arap" else 0
         per_pass = len(frames) * self._units()
         total = (1 + rounds) * per_pass
@@ -379,8 +391,8 @@ class Lift:
 
     def _everywhere(self, report: FrameReport, deformed: np.ndarray, surface: np.ndarray) -> FrameReport:
         """The report of a frame (lifted proxy (N,3), surface (V,3)) with its residuals over every surface vertex."""
-        embedding = self.proxy.embedding_matrix()[self.everywhere]
-        residual = np.linalg.norm(embedding @ deformed - surface[self.everywhere], axis=1) / self.scale
+        embedding = self.proxy.embedding_matrix(self.everywhere)
+        residual = _row_norms(embedding @ deformed - surface[self.everywhere]) / self.scale
         return dataclasses.replace(
             report, residual_max=float(residual.max()), residual_rms=float(np.sqrt(np.mean(residual**2)))
         )
@@ -411,3 +423,8 @@ class Lift:
     def _units(self) -> int:
         """Progress units of one frame's lift: ``max_iterations`` for the ARAP lifts, else 1."""
         return self.config.max_iterations if self.method in ("tet-arap", "tet-edit") else 1
+
+
+def _row_norms(d: np.ndarray) -> np.ndarray:
+    """(M,3) float64 → (M,) float64 Euclidean row norms, without ``np.linalg.norm``'s temporaries."""
+    return np.sqrt(np.einsum("ij,ij->i", d, d))

@@ -130,13 +130,16 @@ class TetProxy:
     """Build record (JSON): offset used, attempts, margin (min surface-to-boundary distance / offset), stage
     times in seconds, dropped degenerate tets, cage face count."""
 
-    def embedding_matrix(self) -> scipy.sparse.csr_matrix:
+    def embedding_matrix(self, rows: np.ndarray | None = None) -> scipy.sparse.csr_matrix:
         """→ sparse ``A (V,N)`` float64 CSR, the four barycentrics of each surface vertex in its row:
-        ``A @ vertices == surface`` (the paper's barycentric matrix)."""
-        n_surface = len(self.embed_tets)
+        ``A @ vertices == surface`` (the paper's barycentric matrix); ``rows (R,) int64``: only those surface vertices'
+        rows, ``A[rows]`` (R,N), built from their embedding alone."""
+        tets, bary = self.embed_tets, self.embed_bary
+        if rows is not None:
+            tets, bary = tets[rows], bary[rows]
         return scipy.sparse.csr_matrix(
-            (self.embed_bary.ravel(), self.tets[self.embed_tets].ravel(), np.arange(0, 4 * n_surface + 1, 4)),
-            shape=(n_surface, len(self.vertices)),
+            (bary.ravel(), self.tets[tets].ravel(), np.arange(0, 4 * len(tets) + 1, 4)),
+            shape=(len(tets), len(self.vertices)),
         )
 
     def refined(self, refinement: Refinement, mesh: SurfaceMesh) -> TetProxy:

@@ -46,8 +46,8 @@ class Refinement:
         per-point temporaries at millions of points)."""
         points, coarse = np.asarray(points, dtype=np.float64), np.asarray(coarse, dtype=np.int64)
         order = np.argsort(self.parent, kind="stable")
-        first = np.searchsorted(self.parent[order], coarse)
-        count = np.searchsorted(self.parent[order], coarse, side="right") - first
+        starts = np.searchsorted(self.parent[order], np.arange(int(self.parent.max(initial=-1)) + 2))
+        first, count = starts[coarse], starts[coarse + 1] - starts[coarse]  # the children of each coarse tet
         tet = order[first]
         bary = np.array(bary, dtype=np.float64)
         split = np.flatnonzero(count > 1)
