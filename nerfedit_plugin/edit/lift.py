@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from nerfedit_plugin.edit import _lift_kernel as _kernel
 from nerfedit_plugin.edit.deformer import Deformer
 from nerfedit_plugin.edit.proxy import TetProxy
 from nerfedit_plugin.edit.spec import EditSpec
@@ -28,8 +29,9 @@ from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry import raycast
 from nerfedit_plugin.geometry.arap import ArapSolver
 from nerfedit_plugin.geometry.injective import InjectiveSolver
+from nerfedit_plugin.geometry.launch import launch
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
-from nerfedit_plugin.geometry.normals import face_normals
+from nerfedit_plugin.geometry.normals import turned_faces
 from nerfedit_plugin.geometry.refine import bisect
 from nerfedit_plugin.geometry.soft_constraints import SoftConstraints
 from nerfedit_plugin.geometry.tets import tet_signed_volumes
@@ -146,20 +148,16 @@ def surface_sample(tets_of: np.ndarray, indices: np.ndarray, budget: int) -> np.
         return indices
     if not np.all(indices[1:] > indices[:-1]):
         indices = np.unique(indices)
-    tets = tets_of[indices]
-    key = tets.astype(np.uint16) if tets.max() < 2**16 else tets  # a stable sort of 16-bit keys is a radix sort
-    order = np.argsort(key, kind="stable")  # by tet, then by index
-    occupied = np.bincount(tets)
-    counts = occupied[occupied > 0]
-    first = np.r_[0, np.cumsum(counts)[:-1]]
-    low, high = 1, int(counts.max())
+    tets = np.ascontiguousarray(tets_of[indices], dtype=np.int64)
+    counts = np.bincount(tets)
+    occupied = counts[counts > 0]
+    low, high = 1, int(occupied.max())
     while low < high:  # the largest k with Σ min(count, k) ≤ budget
         k = (low + high + 1) // 2
-        low, high = (k, high) if np.minimum(counts, k).sum() <= budget else (low, k - 1)
-    rank = np.arange(len(order)) - np.repeat(first, counts)
-    step = np.repeat(np.maximum(counts // low, 1), counts)
-    keep = (rank % step == 0) & (rank // step < low)
-    return np.sort(indices[order[keep]])
+        low, high = (k, high) if np.minimum(occupied, k).sum() <= budget else (low, k - 1)
+    keep = np.empty(len(tets), dtype=bool)
+    _kernel.sample_mask(tets, np.maximum(counts // low, 1), low, keep)
+    return indices[keep]
 
 
 class Lift:
@@ -183,7 +181,6 @@ class Lift:
         """Told of the factorisations and, per frame and refinement round, of the solver's iterations (``__call__``:
         ``max_iterations`` units per frame and round for the ARAP lifts, else 1; a lift that needs fewer rounds
         jumps to the end)."""
-        self.rest_normals = face_normals(rest.vertices, rest.faces)
         self.scale = rest.bbox_diagonal
         """The rest surface's bbox diagonal: the unit of the reports' distances."""
         self.everywhere = np.flatnonzero(rest.referenced())
@@ -297,8 +294,7 @@ class Lift:
 
     def flipped_faces(self, surface: np.ndarray) -> int:
         """surface frame (V,3) float64 → the number of its triangles whose normal turned by more than 90° from rest."""
-        flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0
-        return int(np.count_nonzero(flipped))
+        return int(np.count_nonzero(turned_faces(self.rest.vertices, surface, self.rest.faces)))
 
     def misfit(self, deformed: np.ndarray, surface: np.ndarray) -> np.ndarray:
         """deformed proxy (N,3), surface frame (V,3) float64 → (S,) float64: ``|A t' − v'|`` at each surface vertex
@@ -391,8 +387,13 @@ class Lift:
 
     def _everywhere(self, report: FrameReport, deformed: np.ndarray, surface: np.ndarray) -> FrameReport:
         """The report of a frame (lifted proxy (N,3), surface (V,3)) with its residuals over every surface vertex."""
-        embedding = self.proxy.embedding_matrix(self.everywhere)
-        residual = _row_norms(embedding @ deformed - surface[self.everywhere]) / self.scale
+        proxy, rows = self.proxy, self.everywhere
+        residual = np.empty(len(rows))
+        launch(
+            _kernel.embedded_distances, rows, proxy.embed_tets, proxy.embed_bary, proxy.tets,
+            np.ascontiguousarray(deformed, dtype=np.float64), np.ascontiguousarray(surface, dtype=np.float64), residual,
+        )  # fmt: skip
+        residual /= self.scale
         return dataclasses.replace(
             report, residual_max=float(residual.max()), residual_rms=float(np.sqrt(np.mean(residual**2)))
         )

@@ -47,29 +47,33 @@ class Refinement:
         points, coarse = np.asarray(points, dtype=np.float64), np.asarray(coarse, dtype=np.int64)
         order = np.argsort(self.parent, kind="stable")
         starts = np.searchsorted(self.parent[order], np.arange(int(self.parent.max(initial=-1)) + 2))
-        first, count = starts[coarse], starts[coarse + 1] - starts[coarse]  # the children of each coarse tet
-        tet = order[first]
-        bary = np.array(bary, dtype=np.float64)
-        split = np.flatnonzero(count > 1)
-        launch(_locate_in_children, points, split, first, count, order, self.vertices, self.tets, tet, bary)
-        return tet, bary
+        tet, out = np.empty(len(coarse), dtype=np.int64), np.empty((len(coarse), 4))
+        bary = np.asarray(bary, dtype=np.float64)
+        launch(_locate_in_children, points, coarse, bary, starts, order, self.vertices, self.tets, tet, out)
+        return tet, out
 
 
 @njit(cache=True, parallel=True)
-def _locate_in_children(points, split, first, count, order, vertices, tets, tet, bary):
-    """For each point ``split[k]`` of a cut tet: its children ``order[first : first + count]``, the barycentrics in
-    each (Cramer's rule), and the child whose smallest barycentric is largest into ``tet``, ``bary``."""
-    for k in prange(len(split)):
-        m = split[k]
+def _locate_in_children(points, coarse, bary, starts, order, vertices, tets, tet, out):
+    """For each point ``m`` in coarse tet ``c = coarse[m]``, whose children are ``order[starts[c] : starts[c + 1]]``:
+    an only child (the tet uncut) takes the point with its barycentrics ``bary[m]``; else the child whose smallest
+    barycentric (Cramer's rule) is largest, with those barycentrics → ``tet``, ``out``."""
+    for m in prange(len(coarse)):
+        c = coarse[m]
+        first, count = starts[c], starts[c + 1] - starts[c]
+        if count == 1:
+            tet[m] = order[first]
+            out[m, 0], out[m, 1], out[m, 2], out[m, 3] = bary[m, 0], bary[m, 1], bary[m, 2], bary[m, 3]
+            continue
         best = -np.inf
-        for c in range(count[m]):
-            child = order[first[m] + c]
+        for k in range(count):
+            child = order[first + k]
             l0, l1, l2, l3 = _barycentrics(vertices, tets[child], points[m])
             smallest = min(min(l0, l1), min(l2, l3))
             if smallest > best:
                 best = smallest
                 tet[m] = child
-                bary[m, 0], bary[m, 1], bary[m, 2], bary[m, 3] = l0, l1, l2, l3
+                out[m, 0], out[m, 1], out[m, 2], out[m, 3] = l0, l1, l2, l3
 
 
 @njit(cache=True, inline="always")
