@@ -12,7 +12,9 @@
 
 ``--mesh MESH`` drags on another mesh; ``--subdivisions N`` on the bunny Loop-subdivided N times (``bench_scale.py``'s
 meshes; 3: 1.8M vertices, which the ARAP backend edits on its coarse level: each move solves the coarse level and
-carries the fine surface, which is what is shown);
+carries the fine surface, which is what is shown); on another mesh than the bunny the bunny's drag runs first, as the
+anchor: each backend's median per move is also printed as its ratio to the anchor's, measured in the same run (the
+machine's load moves both alike).
 ``--deformers`` picks the backends.
 
 Usage: ``python bench/bench_editor.py [--run RUN] [--mesh MESH | --subdivisions N] [--deformers arap cage skeleton]``.
@@ -51,7 +53,8 @@ def _grab(state: EditorState, name: str) -> None:
     state.mark(False)
 
 
-def drag(name: str, mesh: str = "sample:bunny") -> None:
+def drag(name: str, mesh: str = "sample:bunny", anchor: float | None = None) -> float:
+    """Drag backend ``name`` on ``mesh`` (printed) → the median ms per move; ``anchor``: the anchor's, for the ratio."""
     rest = SurfaceMesh.load(mesh)
     start = time.perf_counter()
     state = EditorState(editing_backend(name, rest, {"skeleton": SKELETON} if name == "skeleton" else {}))
@@ -84,10 +87,12 @@ def drag(name: str, mesh: str = "sample:bunny") -> None:
     _mesh(vertices, rest.faces, (0.7, 0.7, 0.7))
     rebuild = time.perf_counter() - start
     counted = f"; {np.mean(iterations):.1f} iterations per move" if name == "arap" else ""
+    ratio = "" if anchor is None else f" ({np.median(total) / anchor:.2f}× the anchor's)"
     print(
-        f"  drag: {MOVES} moves, per move median {np.median(total):.0f} ms, p90 {np.percentile(total, 90):.0f} ms, "
-        f"max {total.max():.0f} ms (move + preview median {1e3 * np.median(solve):.1f} ms, positions update "
-        f"{1e3 * np.median(update):.2f} ms; were it rebuilt with normals {1e3 * rebuild:.1f} ms, normals alone "
+        f"  drag: {MOVES} moves, per move median {np.median(total):.0f} ms{ratio}, "
+        f"p90 {np.percentile(total, 90):.0f} ms, max {total.max():.0f} ms (move + preview median "
+        f"{1e3 * np.median(solve):.1f} ms, positions update {1e3 * np.median(update):.2f} ms; "
+        f"were it rebuilt with normals {1e3 * rebuild:.1f} ms, normals alone "
         f"{1e3 * normals:.1f} ms){counted}"
     )
     start = time.perf_counter()
@@ -101,6 +106,7 @@ def drag(name: str, mesh: str = "sample:bunny") -> None:
     start = time.perf_counter()
     state.settle()
     print(f"  settle (the exact `nerfedit edit` solve, bind included): {time.perf_counter() - start:.2f} s")
+    return float(np.median(total))
 
 
 def render(run_path: str) -> None:
@@ -151,6 +157,10 @@ if __name__ == "__main__":
 
         args.mesh = str(level_mesh(args.subdivisions))
     for name in args.deformers:
-        drag(name, args.mesh)
+        anchor = None
+        if args.mesh != "sample:bunny":
+            print("anchor:", end=" ")
+            anchor = drag(name)
+        drag(name, args.mesh, anchor)
     if args.run:
         render(args.run)
