@@ -615,8 +615,9 @@ def _mesh(vertices: np.ndarray, faces: np.ndarray, color) -> o3d.t.geometry.Tria
 
 
 def _set_positions(mesh: o3d.t.geometry.TriangleMesh, vertices: np.ndarray, normals: bool) -> None:
-    """Set ``mesh``'s vertex positions (V,3) in place, and recompute its vertex normals when ``normals``."""
-    mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32))
+    """Set ``mesh``'s vertex positions (V,3) in place, and recompute its vertex normals when ``normals``. The positions
+    are rounded once into a new float32 array, which the tensor takes over without a copy."""
+    mesh.vertex.positions = o3d.core.Tensor.from_numpy(np.array(vertices, dtype=np.float32, order="C"))
     if normals:
         mesh.compute_vertex_normals()
 

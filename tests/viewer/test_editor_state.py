@@ -366,3 +366,14 @@ def test_drag_previews_on_the_coarse_level_keep_handles_exact(bone):
         preview = state.preview()
         indices, targets = _fresh(state)
         assert np.array_equal(preview[indices], targets[0])
+
+
+def test_the_shown_mesh_takes_the_positions_rounded_once_and_owns_them(bone):
+    from nerfedit_plugin.viewer.editor import _mesh, _set_positions
+
+    shown = _mesh(bone.vertices, bone.faces, (0.7, 0.7, 0.7))
+    moved = bone.vertices + 0.01
+    _set_positions(shown, moved, normals=False)
+    expected = moved.astype(np.float32)
+    moved += 1.0  # the caller's array is not the mesh's
+    np.testing.assert_array_equal(shown.vertex.positions.numpy(), expected)
