@@ -62,7 +62,7 @@ JOINTS = {
     },
 }
 
-# THE POSE. These numbers were fixed (issue 13) before any score of bench/bench_paper.py was measured; they are the
+# THE POSE. These numbers were fixed before any score of bench/bench_paper.py was measured; they are the
 # subject of the benchmark, not a parameter: do not change them to move a score. Each joint turns its bone by the
 # given degrees towards a direction of the figure (forward = −y, the way it faces; backward = +y; outward = away
 # from the torso in x), about the axis perpendicular to both the bone at rest and that direction.

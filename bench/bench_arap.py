@@ -4,7 +4,7 @@
    head and ears rotated), and its Loop subdivisions (``--levels 0 1``: 28k and 112k vertices): wall time
    (precompute + iterations) until our solver stops (relative energy decrease < 1e-6; ``--method``, default the
    ``arap`` deformer's L-BFGS) vs libigl's ``arap_precomputation`` + ``arap_solve`` iterated until its energy
-   reaches ours (or stops decreasing, or hits the iteration cap). Target ratio ≤ 0.5 (issue 18: ≤ 0.25).
+   reaches ours (or stops decreasing, or hits the iteration cap). Target ratio ≤ 0.5.
 2. Tet ARAP (ELEMENTS) on a pytetwild sphere (27k vertices, 155k tets; cached in /tmp): precompute + 10 iterations,
    both. Target ratio ≤ 0.5.
 

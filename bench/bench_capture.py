@@ -1,4 +1,4 @@
-"""Bring your own capture (issue 16): real structure from motion on a generated scene, checked against the truth.
+"""Bring your own capture: real structure from motion on a generated scene, checked against the truth.
 
 Scene: ``sample:bunny`` and ``sample:cow`` on the generated floor inside the far shell, both with the ``noise``
 texture (:data:`nerfedit_plugin.data.scene.TEXTURES`: SIFT needs corners everywhere in a frame), rendered at

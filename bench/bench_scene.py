@@ -1,4 +1,4 @@
-"""Scene edits: the cost of rendering a scene edited with k proxies (issue 15), against the unedited render.
+"""Scene edits: the cost of rendering a scene edited with k proxies, against the unedited render.
 
 Scene: ``sample:bunny`` and ``sample:cow`` on the generated floor inside the far shell
 (:func:`nerfedit_plugin.data.scene.generate_scene`, 100×100, 50 train / 10 test views), spread apart
@@ -18,7 +18,7 @@ its training samples per ray, the background model's samples outside the box), i
 round, then ``--repeats``), wall clock and process CPU time. Per k: edited / unedited as the median over the rounds
 of the ratio of the same round (the pair shares the machine's load of its moment), and the ratio of the best times;
 the time the renderer spends in ``deformation.bend`` (all samples it bends, measured inside the renders) and its
-share of the edited render. Target (issue 15): k = 8 ≤ 1.5× the unedited render, growth sub-linear in k. When k = 8
+share of the edited render. Target: k = 8 ≤ 1.5× the unedited render, growth sub-linear in k. When k = 8
 misses it (or with ``--profile``), one edited render of k = 8 is profiled with cProfile.
 
 Usage: ``python bench/bench_scene.py [--seconds 75] [--views 3] [--repeats 5] [--threads N] [--profile]

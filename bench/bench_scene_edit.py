@@ -1,4 +1,4 @@
-"""Scene edits on a trained field, as a user makes them (issue 15): extract, select one object, move it, render.
+"""Scene edits on a trained field, as a user makes them: extract, select one object, move it, render.
 
 The scene and the trained run are :mod:`bench_scene`'s (bunny and cow on the generated floor inside the far shell;
 the ``--field`` backend's defaults with their background model, trained ``--seconds`` of CPU time; cached). ``neus``

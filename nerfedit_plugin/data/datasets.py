@@ -546,6 +546,17 @@ class Dataset:
         transparent background)."""
         return self.alpha is None or bool((self.alpha >= 1.0).all())
 
+    @property
+    def border_coverage(self) -> float:
+        """The share of the images' border pixels (one pixel wide, every view) that are covered (alpha ≥ 0.5): 0
+        for objects framed whole on a transparent background, large when content (a floor, a table) runs out of
+        the frame; 1 for opaque images."""
+        if self.alpha is None:
+            return 1.0
+        covered = self.alpha >= 0.5
+        border = torch.cat([covered[:, 0], covered[:, -1], covered[:, 1:-1, 0], covered[:, 1:-1, -1]], dim=1)
+        return float(border.float().mean())
+
     def to(self, device: torch.device | str) -> Dataset:
         alpha = None if self.alpha is None else self.alpha.to(device)
         mask = None if self.mask is None else self.mask.to(device)

@@ -47,8 +47,6 @@ FLOOR_STEP = FLOOR_CELL / 4
 """Spacing of the floor's vertex grid (257² = 66049 vertices)."""
 FLOOR_NOISE_LENGTH = 3.0
 """Length over which the floor's colour noise makes 1–2.5 cycles."""
-BACKGROUND_RADIUS = 18.0
-"""Radius of the background sphere around the origin."""
 BACKGROUND_SUBDIVISIONS = 5
 """Icosphere subdivisions of the background (10242 vertices, edges ~0.6 long)."""
 AABB_MARGIN = 0.12
@@ -225,6 +223,8 @@ def _check_scene(config: GenerateConfig) -> None:
         raise NerfEditError(f"object_size: expected a positive length, got {config.object_size}")
     if not (math.isfinite(config.gap) and config.gap >= 0):
         raise NerfEditError(f"gap: expected a length >= 0, got {config.gap}")
+    if not (math.isfinite(config.background_radius) and config.background_radius > 0):
+        raise NerfEditError(f"background_radius: expected a positive length, got {config.background_radius}")
     if config.cameras is not None and config.cameras not in (*CAMERAS, "sphere"):
         raise NerfEditError(f"cameras: expected hemisphere, arc or sphere, got {config.cameras!r}")
 
@@ -306,7 +306,7 @@ def floor_mesh(half_size: float = FLOOR_HALF_SIZE, seed: int = 0, texture: str =
     return SurfaceMesh(np.stack([x, y, np.zeros_like(x)], axis=1), faces, np.round(colors * 255.0) / 255.0)
 
 
-def background_mesh(radius: float = BACKGROUND_RADIUS, seed: int = 0, texture: str = "checker") -> SurfaceMesh:
+def background_mesh(radius: float, seed: int = 0, texture: str = "checker") -> SurfaceMesh:
     """The background: an icosphere of ``radius`` around the origin, faces turned inwards, coloured with smooth noise
     of the direction shaded by soft-edged blobs (a thresholded, finer second noise) — no checker, unlike the floor —
     or with the ``noise`` texture (:data:`TEXTURES`); quantised to 8 bits."""
@@ -334,7 +334,7 @@ def build_scene(config: GenerateConfig, texture: str = "checker") -> Scene:
     _check_overlaps(names, [mesh for mesh, _ in placed])
     pieces = [mesh for mesh, _ in placed]
     pieces += [floor_mesh(seed=config.seed, texture=texture)] if config.floor else []
-    pieces += [background_mesh(seed=config.seed, texture=texture)] if config.background else []
+    pieces += [background_mesh(config.background_radius, config.seed, texture)] if config.background else []
     mesh, ranges = _concatenate(pieces)
     objects = tuple(
         SceneObject(name, str(source), to_scene, vertices, faces, np.stack([m.vertices.min(0), m.vertices.max(0)]))
@@ -342,7 +342,7 @@ def build_scene(config: GenerateConfig, texture: str = "checker") -> Scene:
     )
     rest = iter(ranges[len(objects) :])
     floor = Floor(0.0, FLOOR_HALF_SIZE, FLOOR_CELL, *next(rest)) if config.floor else None
-    background = Background(BACKGROUND_RADIUS, *next(rest)) if config.background else None
+    background = Background(config.background_radius, *next(rest)) if config.background else None
     union = np.stack([np.min([o.box[0] for o in objects], 0), np.max([o.box[1] for o in objects], 0)])
     aabb = union + [[-AABB_MARGIN], [AABB_MARGIN]]
     return Scene(mesh, objects, floor, background, aabb)
@@ -368,6 +368,12 @@ def generate_scene(config: GenerateConfig, texture: str = "checker") -> Path:
     both_unset = config.fov_degrees is None and config.radius is None
     radius, fov = framing(ball, config.radius, SCENE_FOV_DEGREES if both_unset else config.fov_degrees)
     kind = config.cameras or "hemisphere"
+    reach = float(np.linalg.norm(centre)) + radius
+    if config.background and reach >= config.background_radius:
+        raise NerfEditError(
+            f"background_radius: the cameras stand up to {reach:.3g} from the origin, outside the background sphere "
+            f"of radius {config.background_radius:g}; expected a larger radius"
+        )
 
     def poses(n: int, seed: int) -> torch.Tensor:
         return scene_poses(kind, n, radius, centre, seed)

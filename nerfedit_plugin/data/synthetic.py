@@ -193,12 +193,15 @@ class GenerateConfig:
     """Scene: a large textured floor at z = 0 (--no-floor leaves the objects floating over the background)."""
     background: bool = True
     """Scene: a far textured sphere around everything, so every pixel is opaque."""
+    background_radius: float = 18.0
+    """Scene: the radius of that sphere around the origin (a few times the camera distance: walls close behind the
+    objects, as in a room)."""
     cameras: Literal["hemisphere", "arc", "sphere"] | None = None
     """Scene: camera placement around the foreground box centre — hemisphere (the default: elevations 15°–65°),
     arc (forward-facing: ±40° of azimuth in front of the scene, elevations 5°–20°) or sphere."""
 
 
-SCENE_OPTIONS = ("positions", "yaws", "object_size", "gap", "floor", "background", "cameras")
+SCENE_OPTIONS = ("positions", "yaws", "object_size", "gap", "floor", "background", "background_radius", "cameras")
 """The :class:`GenerateConfig` fields that only a scene (``objects``) uses."""
 
 

@@ -89,12 +89,16 @@ class BackgroundField(torch.nn.Module):
     def fit_layers(self, dataset) -> dict:
         """Place the layers from the training images (:func:`~nerfedit_plugin.fields.layers.fit_ground` with the
         cameras' up direction, :func:`~nerfedit_plugin.data.datasets.world_up`, then
-        :func:`~nerfedit_plugin.fields.layers.fit_far_sphere`); returns what each sweep found."""
+        :func:`~nerfedit_plugin.fields.layers.fit_far_sphere` on opaque images: with alpha, what lies beyond the
+        covered content is transparent, no far surface); returns what each sweep found."""
         found = {}
         if self.ground is not None:
             found["ground"] = fit_ground(self.ground, dataset, world_up(dataset.cameras))
-        if self.far is not None:
+        if self.far is not None and dataset.opaque:
             found["far"] = fit_far_sphere(self.far, dataset, self.ground)
+        elif self.far is not None:
+            self.far.active.fill_(False)
+            found["far"] = {"active": False, "reason": "images with alpha: transparent beyond their content"}
         return found
 
     def free_depths(self, dataset) -> torch.Tensor | None:

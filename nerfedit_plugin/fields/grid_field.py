@@ -15,6 +15,7 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 import torch
+import torch.nn.functional as F
 
 from nerfedit_plugin.errors import OptionError, check_option
 from nerfedit_plugin.fields.background import BackgroundField
@@ -22,6 +23,11 @@ from nerfedit_plugin.fields.base import Field, FieldConfig
 from nerfedit_plugin.fields.encoding import spherical_harmonics
 from nerfedit_plugin.fields.occupancy import silhouette_depths
 from nerfedit_plugin.training.trainer import TrainerConfig
+
+BORDER_COVERAGE = 0.02
+"""``background="auto"`` on images with alpha: above this share of covered border pixels
+(:attr:`~nerfedit_plugin.data.datasets.Dataset.border_coverage`) the content runs out of the frame and the background
+model is on."""
 
 
 @dataclasses.dataclass
@@ -61,8 +67,10 @@ class GridFieldConfig(FieldConfig):
     """What lies outside the scene box: ``field`` — a background model in contracted space (floors and surroundings
     that run out of the frame; :mod:`nerfedit_plugin.fields.background`), composited in ray order and never bent;
     ``color`` — the render config's constant colour (objects on a transparent background); ``auto`` — decided by
-    ``fit`` from the training images: ``field`` when they are opaque (no alpha channel, or alpha ≡ 1), else
-    ``color`` (the checkpoint stores the decision)."""
+    ``fit`` from the training images: ``field`` when their content runs out of the frame (opaque images, or
+    images with alpha covered on more than :data:`BORDER_COVERAGE` of their border pixels: a floor, a table),
+    else ``color`` (the checkpoint stores the decision). With alpha, what the background model leaves transparent
+    is composited over the constant colour."""
     background_resolution: int = 128
     """Final cells per axis of the background grid over the contracted cube [-2,2]³ (refined at
     ``upsample_steps`` with the field's grid)."""
@@ -76,6 +84,11 @@ class GridFieldConfig(FieldConfig):
     """Cells per side of the far sphere layer's finest texture level (surroundings far away); 0: no far layer."""
     lr_background: float = 0.1
     """Adam learning rate of the background grid."""
+    appearance_tv: float = 0.0
+    """Weight of the appearance features' total variation (:meth:`GridField.appearance_tv`): keeps smooth colour
+    smooth where the grid's cells are finer than the pixels that pin them (0: off)."""
+    tv_points: int = 4096
+    """Random points per step at whose cells the total variation is evaluated (half of them in occupied cells)."""
     train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
     """Optimisation budget and schedule."""
 
@@ -135,6 +148,9 @@ def check_grid_config(config: GridFieldConfig) -> None:
     for name in ("ground_layer", "far_layer"):
         size = getattr(config, name)
         check_option(config, name, size, size == 0 or size >= 32, "0 (off) or at least 32 cells")
+    tv = config.appearance_tv
+    check_option(config, "appearance_tv", tv, 0 <= tv < math.inf, "a number >= 0 (0: off)")
+    check_option(config, "tv_points", config.tv_points, config.tv_points >= 1, "a positive integer")
     check_option(config, "occupancy_dilation", config.occupancy_dilation, config.occupancy_dilation >= 0, ">= 0")
     check_option(config, "occupancy_warmup", config.occupancy_warmup, config.occupancy_warmup >= 0, ">= 0")
     check_option(config, "occupancy_every", config.occupancy_every, config.occupancy_every >= 1, ">= 1")
@@ -228,11 +244,12 @@ class GridField(Field):
         return self.background
 
     def prepare_background(self, dataset: Any, trainer: TrainerConfig) -> TrainerConfig:
-        """Before ``fit``: settle ``background="auto"`` on ``dataset`` (``field`` for opaque images, else ``color``;
+        """Before ``fit``: settle ``background="auto"`` on ``dataset`` (:class:`GridFieldConfig`'s ``background``;
         ``self.config`` becomes a copy saying which) and build the background model when it is on. Returns the
         trainer config to use: with a background model rays are drawn from every pixel."""
         if self.config.background == "auto":
-            self.config = dataclasses.replace(self.config, background="field" if dataset.opaque else "color")
+            leaves_frame = dataset.border_coverage > BORDER_COVERAGE
+            self.config = dataclasses.replace(self.config, background="field" if leaves_frame else "color")
         if self.config.background != "field":
             return trainer
         if self.background is None:
@@ -242,18 +259,55 @@ class GridField(Field):
 
     def free_depths(self, dataset: Any) -> torch.Tensor | None:
         """How far each training pixel's ray is known to be empty, ``(C,H,W)`` camera-space depths for
-        :meth:`OccupancyGrid.carve`: off the silhouettes of transparent images the whole ray (``inf``, else 0); in
-        opaque images up to the background layer a pixel sees (:meth:`BackgroundField.free_depths`, after
-        :meth:`prepare_background`); None when nothing is known."""
-        if not dataset.opaque:
-            return silhouette_depths(dataset.alpha > 0)
-        return None if self.background is None else self.background.free_depths(dataset)
+        :meth:`OccupancyGrid.carve`: off the silhouettes of images with alpha the whole ray (``inf``, else 0), and
+        up to the background layer a pixel sees (:meth:`BackgroundField.free_depths`, after
+        :meth:`prepare_background`), whichever reaches farther; None when nothing is known."""
+        layers = None if self.background is None else self.background.free_depths(dataset)
+        if dataset.opaque:
+            return layers
+        silhouettes = silhouette_depths(dataset.alpha > 0)
+        return silhouettes if layers is None else torch.maximum(silhouettes, layers.to(silhouettes))
 
     def background_groups(self) -> list[dict]:
         """The optimiser group of the background grid (none without a background model)."""
         if self.background is None:
             return []
         return [{"params": list(self.background.parameters()), "lr": self.config.lr_background}]
+
+    def sample_points(self, count: int, generator: torch.Generator) -> torch.Tensor:
+        """``count`` points ``(count,3)``: half uniform in the box, half uniform in occupied occupancy cells."""
+        lo, hi = self.scene_bbox
+        uniform = torch.rand(count - count // 2, 3, generator=generator).to(lo)
+        points = [lo + uniform * (hi - lo)]
+        if self.occupancy is not None:
+            cells = self.occupancy.mask.nonzero()
+            if len(cells):
+                pick = torch.randint(0, len(cells), (count // 2,), generator=generator).to(cells.device)
+                offset = torch.rand(count // 2, 3, generator=generator).to(lo)
+                points.append(lo + (cells[pick] + offset) * (hi - lo) / self.occupancy.resolution)
+        return torch.cat(points)
+
+    def appearance_tv(self, points: torch.Tensor) -> torch.Tensor:
+        """Total variation of the appearance features over the cells of ``points (M,3)``: the mean over the cells'
+        12 edges and the feature channels of ``(g(a) − g(b))²``, ``a, b`` an edge's two grid vertices (Plenoxels'
+        TV, on sampled cells)."""
+        rows = self.grid.corners(points.detach())[0]
+        features = F.embedding(rows, self.grid.table)[..., 1:]  # (M, 8, C)
+        a, b = _EDGES.to(rows.device).unbind(0)
+        return (features[:, a] - features[:, b]).square().mean()
+
+    def appearance_regularizer(self, generator: torch.Generator) -> Callable[[torch.Tensor | None], torch.Tensor]:
+        """``loss(points)``: ``appearance_tv`` × :meth:`appearance_tv` at ``points``, or at ``tv_points`` fresh
+        :meth:`sample_points` when None; 0 when the weight is 0."""
+        weight = self.config.appearance_tv
+
+        def loss(points: torch.Tensor | None = None) -> torch.Tensor:
+            if weight == 0:
+                return torch.zeros((), device=self.scene_bbox.device)
+            points = self.sample_points(self.config.tv_points, generator) if points is None else points
+            return weight * self.appearance_tv(points)
+
+        return loss
 
     @property
     def view_dependent(self) -> bool:
@@ -270,6 +324,11 @@ class GridField(Field):
             lo, hi = self.scene_bbox
             return ((points >= lo) & (points <= hi)).all(-1)
         return self.occupancy.occupied(points)
+
+
+_EDGES = torch.tensor(
+    [[0, 1, 2, 3, 0, 1, 4, 5, 0, 2, 4, 6], [4, 5, 6, 7, 2, 3, 6, 7, 1, 3, 5, 7]]
+)  # the 12 edges of a cell as pairs of corners (DenseGrid.corners order: x slowest, z fastest)
 
 
 class ColorDecoder(torch.nn.Module):

@@ -164,9 +164,14 @@ def _on_layer_device(distance, buffer: torch.Tensor, origins: torch.Tensor, dire
 
 
 def _pixels(dataset, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """:data:`SWEEP_RAYS` random training pixels: origins, directions, colours ``(P,3)`` and views ``(P,)``."""
+    """:data:`SWEEP_RAYS` random covered training pixels (alpha ≥ 0.5: a transparent pixel sees no layer): origins,
+    directions, colours ``(P,3)`` and views ``(P,)``."""
     origins, directions = (r.reshape(-1, 3).cpu() for r in generate_rays(dataset.cameras.to("cpu")))
-    pick = torch.randint(0, len(origins), (SWEEP_RAYS,), generator=torch.Generator().manual_seed(seed))
+    pixels = torch.arange(len(origins))
+    if dataset.alpha is not None:
+        pixels = torch.nonzero(dataset.alpha.reshape(-1).cpu() >= 0.5).squeeze(1)
+    generator = torch.Generator().manual_seed(seed)
+    pick = pixels[torch.randint(0, len(pixels), (SWEEP_RAYS,), generator=generator)] if len(pixels) else pixels
     views = pick // (len(origins) // len(dataset.cameras))
     return origins[pick], directions[pick], dataset.images.reshape(-1, 3).cpu()[pick], views
 

@@ -51,8 +51,8 @@ class NerfConfig(GridFieldConfig):
     mesh_level: float = 25.0
     """Default density level of :meth:`NerfField.extract_mesh`."""
     lr_background: float = 0.3
-    """Adam learning rate of the background grid, the model of what lies outside the scene box on opaque images
-    (scenes); unused on object datasets."""
+    """Adam learning rate of the background grid, the model of what lies outside the scene box when the content runs
+    out of the frame (scenes, captures, floors); unused on object datasets."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -125,11 +125,13 @@ class NerfField(GridField):
 
         if self.occupancy is not None and config.carve and not dataset.opaque:
             self.occupancy.carve(dataset.cameras, self.free_depths(dataset).to(self.scene_bbox.device))
+        appearance = self.appearance_regularizer(torch.Generator().manual_seed(trainer.seed))
         log = train(
             self,
             dataset,
             trainer,
             param_groups=groups,
+            regularizer=(lambda step: appearance()) if config.appearance_tv > 0 else None,
             callback=grid_schedule(self),
             eval_dataset=eval_dataset,
         )

@@ -47,12 +47,13 @@ class NeusConfig(GridFieldConfig):
     init_radius: float = 0.5
     """Radius of the initial sphere, as a fraction of the smallest half side of the scene box."""
     init_hull: bool = True
-    """When the training images have a transparent background (alpha < 1 somewhere), :meth:`NeusField.fit` first
-    replaces the sphere by the signed distance to the visual hull of the covered pixels (at the starting grid
-    resolution), so training starts near the surface. Opaque images (a scene) have no silhouettes: the field starts
-    from the box's own surface (shrunk by two cells), carved by the photometric hull when a background layer is found
-    (the pixels that see the floor or the far sphere through the box, :meth:`GridField.free_depths`). Off: the
-    sphere of ``init_radius``."""
+    """When the training images frame objects on a transparent background, :meth:`NeusField.fit` first replaces the
+    sphere by the signed distance to the visual hull of the covered pixels (at the starting grid resolution), so
+    training starts near the surface. When their content runs out of the frame (the background model on: opaque
+    images, a floor) silhouettes are no object's hull: the field starts from the box's own surface (shrunk by two
+    cells), carved by the photometric hull when a background layer is found (the pixels that see the floor or the
+    far sphere through the box, :meth:`GridField.free_depths`) and by the transparent pixels. Off: the sphere of
+    ``init_radius``."""
     init_shell: float = 4.0
     """With ``init_hull`` on images with silhouettes: start from the hull's shell of this thickness in final cells
     (``f = |d + t/2| − t/2``, ``d`` the hull's signed distance), hollow inside; 0: the solid hull. The hull closes a
@@ -149,19 +150,6 @@ class NeusField(GridField):
         gradient = self.grid.value_and_gradient(points)[1][:, :, 0] * self.cell
         return (gradient.norm(dim=-1) - 1.0).square().mean()
 
-    def _eikonal_points(self, count: int, generator: torch.Generator) -> torch.Tensor:
-        """``count`` points: half uniform in the box, half uniform in occupied occupancy cells."""
-        lo, hi = self.scene_bbox
-        uniform = torch.rand(count - count // 2, 3, generator=generator).to(lo)
-        points = [lo + uniform * (hi - lo)]
-        if self.occupancy is not None:
-            cells = self.occupancy.mask.nonzero()
-            if len(cells):
-                pick = torch.randint(0, len(cells), (count // 2,), generator=generator).to(cells.device)
-                offset = torch.rand(count // 2, 3, generator=generator).to(lo)
-                points.append(lo + (cells[pick] + offset) * (hi - lo) / self.occupancy.resolution)
-        return torch.cat(points)
-
     @torch.no_grad()
     def init_from_hull(
         self, cameras: Any, free: torch.Tensor, margin: int = 0, keep_unseen: bool = False, shell: float | None = None
@@ -239,16 +227,18 @@ class NeusField(GridField):
         """Train on ``dataset`` with :func:`nerfedit_plugin.training.trainer.train` (``trainer`` overrides
         ``config.train``): colour loss + ``eikonal_weight`` × eikonal loss, cosine annealing over ``anneal_steps``, the
         occupancy band carved to the visual hull and refreshed every ``occupancy_every`` steps after the warm-up, and
-        the grid refined at ``upsample_steps``. Opaque images (the background model on, see
-        :meth:`prepare_background`) have no silhouettes: with ``init_hull`` the field starts from the box
-        (:meth:`init_from_box`) carved by their photometric hull when there is one, and nothing is carved from the
-        occupancy grid (measured on the scene: no gain for ``nerf``)."""
+        the grid refined at ``upsample_steps``. With the background model on (:meth:`prepare_background`: content
+        runs out of the frame) silhouettes are no object's hull: with ``init_hull`` the field starts from the box
+        (:meth:`init_from_box`) carved by the photometric hull and the transparent pixels when there are any;
+        opaque images carve nothing from the occupancy grid (measured on the scene: no gain for ``nerf``)."""
         trainer = self.prepare_background(dataset, trainer or self.config.train)
         config = self.config
         generator = torch.Generator().manual_seed(trainer.seed)
+        appearance = self.appearance_regularizer(generator)
 
         def regularizer(step: int) -> torch.Tensor:
-            return config.eikonal_weight * self.eikonal_loss(self._eikonal_points(config.eikonal_points, generator))
+            points = self.sample_points(config.eikonal_points, generator)
+            return config.eikonal_weight * self.eikonal_loss(points) + appearance(points)
 
         def groups() -> list[dict]:
             return [
@@ -257,13 +247,13 @@ class NeusField(GridField):
                 {"params": list(self.color.parameters()), "lr": config.lr_mlp},
             ] + self.background_groups()
 
-        free, opaque = self.free_depths(dataset), dataset.opaque
+        free, scene = self.free_depths(dataset), config.background == "field"
         free = None if free is None else free.to(self.scene_bbox.device)
-        if config.init_hull and opaque:
+        if config.init_hull and scene:
             self.init_from_box()
         if config.init_hull and free is not None:
-            self.init_from_hull(dataset.cameras, free, keep_unseen=opaque, shell=0.0 if opaque else None)
-        if self.occupancy is not None and config.carve and not opaque:
+            self.init_from_hull(dataset.cameras, free, keep_unseen=scene, shell=0.0 if scene else None)
+        if self.occupancy is not None and config.carve and not dataset.opaque:
             self.occupancy.carve(dataset.cameras, free)
         log = train(
             self,

@@ -14,6 +14,7 @@ from nerfedit_plugin.cli.app import main
 from nerfedit_plugin.data.datasets import load_dataset, read_image, read_transforms
 from nerfedit_plugin.data.scene import (
     background_mesh,
+    build_scene,
     floor_mesh,
     generate_scene,
     read_scene,
@@ -169,6 +170,8 @@ def test_bad_edits_are_one_clear_error(scene, edit, message):
         (dict(hemisphere=True), "hemisphere: a scene's cameras are chosen by --cameras"),
         (dict(mesh="sample:bunny", objects=[]), "objects: a scene needs at least one mesh"),
         (dict(radius=0.5), "radius: 0.5 puts the cameras inside"),
+        (dict(background_radius=0.0), "background_radius: expected a positive length"),
+        (dict(background_radius=2.0), "background_radius: the cameras stand up to .* outside the background sphere"),
     ],
 )
 def test_bad_scene_configs_are_rejected_before_writing(tmp_path, change, message):
@@ -176,6 +179,13 @@ def test_bad_scene_configs_are_rejected_before_writing(tmp_path, change, message
     with pytest.raises(NerfEditError, match=message):
         generate_scene(config)
     assert not (tmp_path / "out").exists()
+
+
+def test_the_background_sphere_can_be_brought_close_as_a_room(tmp_path):
+    scene = build_scene(GenerateConfig(out=tmp_path, objects=["sample:cow"], background_radius=5.0))
+    vertices = scene.part(scene.background).vertices
+    assert scene.background.radius == 5.0
+    np.testing.assert_allclose(np.linalg.norm(vertices, axis=1), 5.0, rtol=1e-6)
 
 
 @pytest.mark.parametrize("option", [dict(floor=False), dict(cameras="arc"), dict(yaws=[10.0])])
@@ -217,7 +227,7 @@ def test_read_scene_names_the_file_and_key_of_a_bad_description(dataset, tmp_pat
 
 
 def test_floor_and_background_are_textured_everywhere_and_deterministic():
-    floor, background = floor_mesh(seed=1), background_mesh(seed=1)
+    floor, background = floor_mesh(seed=1), background_mesh(18.0, seed=1)
     assert np.array_equal(floor.vertex_colors, floor_mesh(seed=1).vertex_colors)
     assert not np.array_equal(floor.vertex_colors, floor_mesh(seed=2).vertex_colors)
     for mesh in (floor, background):

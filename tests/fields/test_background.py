@@ -115,13 +115,19 @@ def test_an_empty_background_model_composites_like_the_constant_colour(tiny_scen
     )
 
 
-def test_auto_turns_the_model_on_for_opaque_images_only(tiny_scene):
+def test_auto_turns_the_model_on_when_the_content_runs_out_of_the_frame(tiny_scene):
+    """Opaque images, and images with alpha whose covered pixels reach the border (a floor running out of the
+    frame, transparent beyond it), get the background model; an object framed whole does not."""
     transparent = load_dataset(tiny_scene, "train")
     opaque = dataclasses.replace(transparent, alpha=torch.ones_like(transparent.alpha))
+    floor = dataclasses.replace(transparent, alpha=transparent.alpha.clone())
+    floor.alpha[:, -8:] = 1.0  # the bottom quarter of every view covered: 46 of the 124 border pixels
     assert not transparent.opaque and opaque.opaque and dataclasses.replace(transparent, alpha=None).opaque
+    assert transparent.border_coverage == 0.0 and opaque.border_coverage == 1.0 and not floor.opaque
+    assert floor.border_coverage == pytest.approx(46 / 124)
     for cls in (NerfConfig, NeusConfig):
         trainer = cls.tiny().train
-        for dataset, expected in ((transparent, "color"), (opaque, "field")):
+        for dataset, expected in ((transparent, "color"), (opaque, "field"), (floor, "field")):
             field = cls.tiny().setup(scene_bbox=transparent.scene_bbox)
             used = field.prepare_background(dataset, trainer)
             assert field.config.background == expected
@@ -142,6 +148,33 @@ def tiny_floor_scene(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny-floor") / "scene"
     config = GenerateConfig(out=out, objects=["sample:cow"], resolution=32, n_train=8, n_val=1, n_test=2)
     return generate_scene(dataclasses.replace(config, supersample=1))
+
+
+@pytest.fixture(scope="module")
+def tiny_transparent_floor(tmp_path_factory):
+    """The cow on the generated floor with no background sphere: transparent beyond the floor's edge (a
+    film-transparent render of an object on a floor), 32×32, 8 train, 2 test."""
+    from nerfedit_plugin.data.scene import generate_scene
+    from nerfedit_plugin.data.synthetic import GenerateConfig
+
+    out = tmp_path_factory.mktemp("tiny-transparent-floor") / "scene"
+    config = GenerateConfig(out=out, objects=["sample:cow"], resolution=32, n_train=8, n_val=1, n_test=2)
+    return generate_scene(dataclasses.replace(config, supersample=1, background=False))
+
+
+def test_a_floor_with_alpha_gets_the_background_model_and_beats_the_constant_colour(tiny_transparent_floor):
+    """Images with alpha whose floor runs out of the frame: ``auto`` turns the model on, the far sphere stays off
+    (transparent pixels see no layer), and training beats the constant colour of object datasets."""
+    train, test = load_dataset(tiny_transparent_floor, "train"), load_dataset(tiny_transparent_floor, "test")
+    assert not train.opaque and train.border_coverage > 0.2
+    scores = {}
+    for background in ("color", "auto"):
+        config = NerfConfig.tiny(seconds=120.0, background=background)
+        config.train.max_steps, config.train.clock = 40, "cpu"
+        field = config.setup(scene_bbox=train.scene_bbox)
+        scores[background] = field.fit(train, eval_dataset=test)["eval"][-1][1]
+    assert field.config.background == "field" and not bool(field.background.far.active)
+    assert scores["auto"] > scores["color"] + 1.0, scores
 
 
 def test_training_on_a_scene_beats_the_constant_colour_and_the_model_round_trips(tiny_floor_scene, tmp_path):

@@ -199,7 +199,7 @@ def test_opaque_images_start_from_the_box_surface(monkeypatch):
     assert float(centre) == pytest.approx(-(0.3 - 2 * field.cell), abs=1e-6) and (sdf(field, BOX) > 0).all()
 
     class Opaque:  # what fit reads before training: no alpha, so no silhouettes
-        opaque, alpha = True, None
+        opaque, alpha, border_coverage = True, None, 1.0
 
     started = []
     monkeypatch.setattr("nerfedit_plugin.fields.neus.train", lambda field, *a, **k: started.append(field) or {})
