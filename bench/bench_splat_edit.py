@@ -12,6 +12,18 @@ truth: the same Gaussians moved by ``φ`` itself and its exact Jacobian at each 
 :class:`~nerfedit_plugin.bending.maps.ForwardMap` through the same ``deform_model``). Both are rendered from 8
 cameras around the bent capsule; the figure is the PSNR of the edit's renders against the ground truth's, and the
 seconds of the forward map.
+
+    python bench/bench_splat_edit.py --map [--sizes N ...] [--frames F] [--resolution PX]
+
+``--map`` times the forward map alone, per frame of an animation: a 12³ Kuhn grid proxy of the cube [-1, 1]³
+(10,368 tets) bent and stretched over ``F`` frames (frame ``k`` is ``(k+1)/F`` of the way to the bar of
+:func:`proxy_frames`), carrying synthetic degree-3 models of ``N`` Gaussians (means uniform in the ball of radius
+0.8, every Gaussian moving; scales log-uniform in [0.003, 0.03]). The first frame also locates the rest means (once
+per model and proxy); frames 1.. are the per-frame cost (their median, best and worst, wall and process CPU seconds).
+Anchor, measured in the same run: one copy of the model's arrays (the memory traffic every map pays, best of 3);
+and for the smallest size, one 256² render of the unedited model (distance 2.8, 0.8 rad field of view; best of 3).
+The numba kernels are compiled (or loaded from numba's cache) before timing; the load average is printed with each
+size.
 """
 
 from __future__ import annotations
@@ -19,6 +31,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -26,14 +40,17 @@ from pathlib import Path
 import numpy as np
 import torch
 import trimesh
+from timing import best_of
 
 from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.maps import DeformedPoints
 from nerfedit_plugin.cli import main
+from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.fields.splats.deform import deform_model
 from nerfedit_plugin.fields.splats.field import SplatsField
 from nerfedit_plugin.fields.splats.files import write_ply
-from nerfedit_plugin.fields.splats.model import SH_C0, SplatModel
+from nerfedit_plugin.fields.splats.model import SH_C0, SplatModel, synthetic_model
+from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
 from nerfedit_plugin.render.renderer import RenderConfig
 from nerfedit_plugin.render.views import turntable_cameras
 
@@ -125,14 +142,81 @@ def run(out: Path, gaussians: int, resolution: int, rate: float, proxy: list[str
     }
 
 
+def proxy_frames(frames: int) -> DeformationField:
+    """The 12³ Kuhn grid of [-1, 1]³ bent about y (0.4 rad per unit of height), sheared and stretched (y by up to
+    1.4, z by 1.3), reached in ``frames`` equal steps (frame ``k``: ``(k+1)/frames`` of the displacement)."""
+    vertices, tets = kuhn_grid(12, np.full(3, -1.0), np.full(3, 1.0))
+    x, y, z = vertices.T
+    h = z + 1.0
+    bent = np.stack([x * np.cos(0.4 * h) + 0.3 * h * np.sin(0.4 * h) - 0.2 * y, y * (1 + 0.2 * h), 1.3 * z], 1)
+    steps = [vertices + (bent - vertices) * (k + 1) / frames for k in range(frames)]
+    return DeformationField(vertices, orient_tets(vertices, tets), np.stack(steps))
+
+
+def _load() -> str:
+    return "load " + " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def time_map(sizes: list[int], frames: int, resolution: int) -> dict:
+    """The ``--map`` measurements (module docstring) → per size, the seconds and ratios (also printed)."""
+    field = proxy_frames(frames)
+    deform_model(synthetic_model(2000, 3, seed=1), field, 0)  # compile or load the kernels
+    results = {}
+    for n in sizes:
+        model = synthetic_model(n, 3, seed=0, radius=0.8, scale=(0.003, 0.03))
+        print(f"\n== {n} Gaussians, {len(field.tets)} tets, {frames} frames ({_load()})")
+        start, cpu = time.perf_counter(), time.process_time()
+        _, report = deform_model(model, field, 0)
+        first = (time.perf_counter() - start, time.process_time() - cpu)
+        wall, process = [], []
+        for frame in range(1, frames):
+            start, cpu = time.perf_counter(), time.process_time()
+            deform_model(model, field, frame)
+            wall.append(time.perf_counter() - start)
+            process.append(time.process_time() - cpu)
+        anchor = best_of(lambda model=model: [a.copy() for a in model.arrays()], 3)
+        median = statistics.median(wall)
+        row = {
+            "gaussians": n,
+            "moved": report.moved,
+            "first_frame_s": first[0],
+            "per_frame_s": {"median": median, "best": min(wall), "worst": max(wall)},
+            "per_frame_cpu_s": statistics.median(process),
+            "anchor_copy_s": anchor,
+            "ratio_to_copy": median / anchor,
+        }
+        print(f"first frame (locates the means): {first[0]:.3f} s wall, {first[1]:.3f} s CPU; moved {report.moved}")
+        print(
+            f"per frame: {median:.3f} s median (best {min(wall):.3f}, worst {max(wall):.3f}), "
+            f"{row['per_frame_cpu_s']:.3f} s CPU ({_load()})"
+        )
+        print(f"anchor, one copy of the model's arrays: {anchor * 1e3:.1f} ms; ratio {median / anchor:.1f}x")
+        if n == min(sizes):
+            splats = SplatsField.from_model(model)
+            c2w = look_at(torch.tensor([[0.0, -2.8, 0.0]]), torch.zeros(1, 3))
+            camera = Cameras.from_fov(c2w, resolution, resolution, 0.8)
+            render = best_of(lambda s=splats, c=camera: s.render(c, 0, RenderConfig()), 3, warmup=True)
+            row.update({"render_s": render, "ratio_to_render": median / render})
+            print(f"one {resolution}² render of the model: {render:.3f} s; map / render = {median / render:.2f}")
+        results[n] = row
+    return results
+
+
 def main_bench() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gaussians", type=int, default=50000)
-    parser.add_argument("--resolution", type=int, default=128)
+    parser.add_argument("--resolution", type=int, default=None, help="render size (128; 256 with --map)")
     parser.add_argument("--bend", type=float, default=0.8)
     parser.add_argument("--proxy", nargs="*", default=[], help="proxy options OPTION=VALUE (nerfedit edit --proxy.*)")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--map", action="store_true", help="time the forward map per frame instead (docstring)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[200_000, 1_000_000])
+    parser.add_argument("--frames", type=int, default=6)
     options = parser.parse_args()
+    if options.map:
+        print(json.dumps(time_map(options.sizes, max(2, options.frames), options.resolution or 256), indent=2))
+        return
+    options.resolution = options.resolution or 128
     with tempfile.TemporaryDirectory() as scratch:
         out = options.out or Path(scratch)
         out.mkdir(parents=True, exist_ok=True)

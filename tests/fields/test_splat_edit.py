@@ -233,3 +233,48 @@ def test_the_compiled_pass_is_the_torch_reference():
         assert report.moved == report.inverted == len(compiled) and report.split == expected.split > 0
         for a, b in zip(compiled.arrays(), reference.arrays()):
             assert a.dtype == dtype and np.allclose(a, b, rtol=0, atol=atol)
+
+
+def test_the_fused_pass_matches_a_per_gaussian_brute_force_and_locates_once(monkeypatch):
+    """Oracle written here, one Gaussian at a time: its rest tet by brute force over every tet, μ' = Σ b_i d_i,
+    F = D'D⁻¹, Σ' = FΣFᵀ, the SH bands rotated by scipy's polar rotation of F; Gaussians outside the proxy and in
+    still tets unchanged. Then a second frame and a repeat of the first reuse the location (the locator is not
+    called again) and give the same model as a fresh field; other means are located anew."""
+    from nerfedit_plugin.bending.locate import locate_brute_force
+
+    vertices, tets = kuhn_grid(4, np.full(3, -0.8), np.full(3, 0.8))
+    tets = orient_tets(vertices, tets)
+    rng = np.random.default_rng(11)
+    frames = [vertices + 0.15 * np.sin(2.0 * vertices[:, [1, 2, 0]]) * (k + 1) for k in range(2)]
+    for frame in frames:
+        frame[vertices[:, 2] < -0.5] = vertices[vertices[:, 2] < -0.5]  # still tets at the bottom
+    field = DeformationField(vertices, tets, np.stack(frames), dtype=torch.float64)
+    model = synthetic_model(400, 3, seed=12, radius=1.0, dtype=np.float64)
+    model.means[:5] = rng.uniform(0.85, 1.0, size=(5, 3))  # outside the proxy
+    located = []
+    rest = field._rest()
+    original = rest.locate
+    monkeypatch.setattr(rest, "locate", lambda x: located.append(len(x)) or original(x))
+    for frame in (0, 1, 0):
+        out, report = deform_model(model, field, frame)
+        tet, bary = locate_brute_force(vertices, tets, torch.from_numpy(model.means), torch.float64)
+        still = field.still_tets(frame)
+        moving = (tet.numpy() >= 0) & ~still[np.maximum(tet.numpy(), 0)]
+        assert report.moved == moving.sum() and 0 < report.moved < len(model)
+        for i in range(len(model)):
+            if not moving[i]:
+                assert all(np.array_equal(a[i], b[i]) for a, b in zip(out.arrays(), model.arrays()))
+                continue
+            corners = field.deformed_vertices[frame][tets[tet[i]]]
+            rest_corners = vertices[tets[tet[i]]]
+            f = (corners[1:] - corners[0]).T @ np.linalg.inv((rest_corners[1:] - rest_corners[0]).T)
+            assert np.allclose(out.means[i], bary[i].numpy() @ corners, atol=1e-12)
+            sigma = covariance(SplatModel(*(a[i : i + 1] for a in model.arrays())))[0]
+            assert np.allclose(covariance(SplatModel(*(a[i : i + 1] for a in out.arrays())))[0], f @ sigma @ f.T)
+            assert np.allclose(out.sh[i], band_rotation(model.sh[i : i + 1], scipy.linalg.polar(f)[0])[0])
+    assert located == [len(model)]  # one location for three calls
+    fresh, _ = deform_model(model, DeformationField(vertices, tets, np.stack(frames), dtype=torch.float64), 0)
+    assert all(np.array_equal(a, b) for a, b in zip(out.arrays(), fresh.arrays()))
+    other = SplatModel(model.means + 0.01, *model.arrays()[1:])
+    deform_model(other, field, 0)
+    assert located == [len(model), len(model)]

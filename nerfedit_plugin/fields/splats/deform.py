@@ -32,16 +32,22 @@ overlap at 2–2.5 of it, so the chain has no gaps.
 from __future__ import annotations
 
 import math
+import threading
+import weakref
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
+from nerfedit_plugin.bending.deformation_field import DeformationField
 from nerfedit_plugin.bending.maps import ForwardMap, Placement, PlacementMap
 from nerfedit_plugin.errors import NerfEditError
 from nerfedit_plugin.fields.splats.model import SplatModel
 from nerfedit_plugin.fields.splats.projection import rotation_matrices
-from nerfedit_plugin.fields.splats.sh_rotation import rotate_sh, wigner_matrices
+from nerfedit_plugin.fields.splats.sh_rotation import rotate_sh
 
 MAX_CHILDREN = 8
 """At most this many children replace one stretched Gaussian."""
@@ -131,14 +137,16 @@ def deform_model(
     """``model`` moved by ``deformation`` at ``frame`` (module docstring) → ``(model in its dtype, report)``; with
     ``split_growth``, stretched Gaussians are split first (their children come after the model's Gaussians, the first
     child in its parent's place; the report's ``growth`` is the one measured before splitting). ``kernel``:
-    ``"numba"`` (``"auto"``: compiled, the polar rotation and Wigner matrices once per distinct ``F``) or
-    ``"torch"`` (the reference, per Gaussian)."""
+    ``"numba"`` (``"auto"``: compiled — through a CPU :class:`DeformationField` one fused pass over the Gaussians,
+    their rest tets located once per model and proxy (:func:`_location`), the polar rotations and Wigner matrices
+    once per moving tet and frame; through any other map once per distinct ``F``) or ``"torch"`` (the reference,
+    per Gaussian, through the map's ``to_deformed`` / ``place``)."""
     if kernel not in ("auto", "numba", "torch"):
         raise ValueError(f"kernel must be 'auto', 'numba' or 'torch', got {kernel!r}")
     out, report, moved = _deform(model, deformation, frame, kernel)
     if split_growth is None or report.moved == 0 or report.growth["max"] <= split_growth:
         return out, report
-    source, gradient, growth = moved
+    source, gradient, growth = moved()
     worst = np.zeros(len(model))  # each rest Gaussian's largest growth over its places, and that place's F
     np.maximum.at(worst, source, growth)
     chosen = np.nonzero(worst > split_growth)[0]
@@ -151,28 +159,38 @@ def deform_model(
     return out, after
 
 
+Moved = Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]
+"""``() → (source, F, growth)`` of the moved Gaussians: the rest Gaussian each is of, its gradient ``(P,3,3)``
+float64 and its anisotropy growth (made on demand: only a split needs it)."""
+
+
 def _deform(
     model: SplatModel, deformation: ForwardMap | PlacementMap, frame: int, kernel: str
-) -> tuple[SplatModel, DeformReport, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """:func:`deform_model` without splitting → ``(model, report, (source, F, growth))`` of the moved Gaussians:
-    the rest Gaussian each is of, its gradient ``(P,3,3)`` float64 and its anisotropy growth."""
+) -> tuple[SplatModel, DeformReport, Moved]:
+    """:func:`deform_model` without splitting → ``(model, report, moved)``."""
+    if kernel != "torch" and isinstance(deformation, DeformationField) and deformation.device.type == "cpu":
+        return _deform_proxy(model, deformation, frame)
     dtype, count = model.means.dtype, len(model)
     placed = _placement(deformation, torch.from_numpy(np.ascontiguousarray(model.means)), frame)
     source = placed.source.cpu().numpy()
     kept = int(np.count_nonzero(np.bincount(source, minlength=count)))
     out = SplatModel(*(a[source] for a in model.arrays()))  # fresh arrays, updated in place below
-    means = torch.from_numpy(out.means)
     points, gradient = placed.points.cpu(), placed.gradient.cpu()
+    means = torch.from_numpy(out.means).to(points.dtype)
     eye = torch.eye(3, dtype=gradient.dtype)
-    rows = torch.nonzero((points.to(means) != means).any(1) | (gradient != eye).flatten(1).any(1)).squeeze(1)
+    rows = torch.nonzero((points != means).any(1) | (gradient != eye).flatten(1).any(1)).squeeze(1)
     report = DeformReport(count, len(source), count - kept, len(source) - kept, len(rows))
     index, f = rows.numpy(), gradient.index_select(0, rows)
     if len(rows) == 0:
-        return out, report, (source[index], f.double().numpy(), np.ones(0))
+        return out, report, lambda: (source[index], f.double().numpy(), np.ones(0))
     out.means[index] = points.index_select(0, rows).numpy()
     growth = (_move_torch if kernel == "torch" else _move_compiled)(out, index, f, report).numpy()
-    report.growth = {"max": float(growth.max()), "p99": float(np.percentile(growth, 99))}
-    return out.astype(dtype), report, (source[index], f.double().numpy(), growth)
+    report.growth = _growth(growth)
+    return out.astype(dtype), report, lambda: (source[index], f.double().numpy(), growth)
+
+
+def _growth(growth: np.ndarray) -> dict[str, float]:
+    return {"max": float(growth.max()), "p99": float(np.percentile(growth, 99))}
 
 
 def _move_torch(model: SplatModel, index: np.ndarray, f: torch.Tensor, report: DeformReport) -> torch.Tensor:
@@ -196,22 +214,39 @@ def _move_torch(model: SplatModel, index: np.ndarray, f: torch.Tensor, report: D
     return (new_scales.amax(1) / new_scales.amin(1)) / (scales.amax(1) / scales.amin(1))
 
 
+class _Tables(NamedTuple):
+    """Per gradient: its record (:func:`nerfedit_plugin.fields.splats._deform_kernel.piece_tables`: the polar
+    rotation, the stretch ``Rᵀ F`` and the Wigner matrices of bands 1–3, float64) and whether ``det F < 0``."""
+
+    records: np.ndarray
+    inverted: np.ndarray
+
+
+def _tables(gradients: np.ndarray) -> _Tables:
+    """:class:`_Tables` of ``gradients (P,3,3)`` float64, compiled, parallel over gradients."""
+    from nerfedit_plugin.fields.splats._deform_kernel import RECORD, piece_tables
+    from nerfedit_plugin.geometry.launch import launch
+
+    gradients = np.ascontiguousarray(gradients, dtype=np.float64)
+    tables = _Tables(np.empty((len(gradients), RECORD)), np.empty(len(gradients), dtype=np.bool_))
+    launch(piece_tables, gradients, *tables)
+    return tables
+
+
 def _move_compiled(model: SplatModel, index: np.ndarray, f: torch.Tensor, report: DeformReport) -> torch.Tensor:
     """:func:`_move_torch` with the polar rotations and Wigner matrices computed once per distinct gradient (``F`` is
-    constant per tet) and the per-Gaussian work in one compiled pass (:mod:`._deform_kernel`)."""
-    from nerfedit_plugin.fields.splats._deform_kernel import move_gaussians
+    constant per tet) and the per-Gaussian work in one compiled pass on the model's arrays
+    (:mod:`._deform_kernel`)."""
+    from nerfedit_plugin.fields.splats._deform_kernel import move_rows
     from nerfedit_plugin.geometry.launch import launch
 
     table, piece = _pieces(f.numpy())
-    rotation, inverted = polar_rotations(torch.from_numpy(table))
-    report.inverted = int(inverted.numpy()[piece].sum())
-    stretch = rotation.transpose(1, 2) @ torch.from_numpy(table)
-    wigner = wigner_matrices(rotation, 3)
-    moved = [np.ascontiguousarray(a[index], dtype=np.float64) for a in (model.quats, model.log_scales, model.sh)]
+    tables = _tables(table)
+    report.inverted = int(tables.inverted[piece].sum())
     growth = np.empty(len(index))
-    tables = (np.ascontiguousarray(a) for a in (rotation, stretch, *wigner))
-    launch(move_gaussians, piece, *tables, *moved, growth)
-    model.quats[index], model.log_scales[index], model.sh[index] = moved
+    arrays = [np.ascontiguousarray(a) for a in (model.quats, model.log_scales, model.sh)]
+    launch(move_rows, np.ascontiguousarray(index), piece, tables.records, *arrays, growth)
+    model.quats, model.log_scales, model.sh = arrays
     return torch.from_numpy(growth)
 
 
@@ -233,6 +268,163 @@ def _pieces(gradients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if not np.array_equal(distinct[piece], flat):
         distinct, piece = np.unique(flat, axis=0, return_inverse=True)
     return distinct.reshape(-1, 3, 3).astype(np.float64), piece.reshape(-1)
+
+
+# ---- through a tet proxy: located once, one fused pass per frame -------------------------------------------------
+
+LOCATIONS_KEPT = 2
+"""Located models kept per proxy (the model and, say, its split children)."""
+
+FRAMES_KEPT = 4
+"""Frames of per-tet tables kept per located model."""
+
+_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # DeformationField → [_Location], newest last
+_CACHE_LOCK = threading.Lock()
+
+
+@dataclass(eq=False)
+class _Location:
+    """Where the rest means ``means`` (a copy: the key) lie in a proxy's rest tets: ``tet (N,)`` int64 (-1 outside),
+    ``bary (4,N)`` (computed in the proxy's dtype, stored as float64), ``used`` the tets that hold some, their rest edge
+    inverses ``D⁻¹`` (float64) and whether ``D`` is regular; per frame, :class:`_Frame`."""
+
+    means: np.ndarray
+    tet: np.ndarray
+    bary: np.ndarray
+    used: np.ndarray
+    inverse: np.ndarray
+    regular: np.ndarray
+    frames: OrderedDict = field(default_factory=OrderedDict)
+
+
+class _Frame(NamedTuple):
+    """A frame's moving tets among the used ones: ``slot (K,)`` their row in the tables (-1: still or empty), gradients
+    ``(T,3,3)`` (float64 holding values of the proxy's dtype), whether each is exactly ``I``, and their
+    :class:`_Tables`."""
+
+    slot: np.ndarray
+    gradient: np.ndarray
+    identity: np.ndarray
+    tables: _Tables
+
+
+def _location(deformation: DeformationField, means: np.ndarray) -> _Location:
+    """The rest tets of ``means`` in ``deformation``'s proxy, located by its rest locator (the one ``to_deformed``
+    uses: exact, the tet brute force picks) on the first call, then from the cache while the proxy lives and the
+    means are the same."""
+    with _CACHE_LOCK:
+        entries = _CACHE.setdefault(deformation, [])
+        for entry in entries:
+            if entry.means.shape == means.shape and entry.means.dtype == means.dtype:
+                if np.array_equal(entry.means, means):
+                    entries.remove(entry)
+                    entries.append(entry)
+                    return entry
+    x = torch.from_numpy(np.ascontiguousarray(means)).to(deformation.dtype)
+    tet, bary = deformation._rest().locate(x)
+    tet = tet.numpy()
+    used = np.unique(tet)
+    used = used[used >= 0]
+    rest = torch.as_tensor(deformation.rest_vertices)[torch.as_tensor(deformation.tets[used])]
+    edges = (rest[:, 1:] - rest[:, :1]).transpose(1, 2)  # D: the rest edges as columns
+    regular = torch.linalg.det(edges) != 0
+    eye = torch.eye(3, dtype=torch.float64)
+    inverse = torch.linalg.inv(torch.where(regular[:, None, None], edges, eye)).numpy()
+    bary = bary.t().numpy().astype(np.float64)  # exact: one kernel for either dtype
+    entry = _Location(means.copy(), tet, bary, used, inverse, regular.numpy())
+    with _CACHE_LOCK:
+        entries = _CACHE.setdefault(deformation, [])
+        entries.append(entry)
+        del entries[:-LOCATIONS_KEPT]
+    return entry
+
+
+def _frame(deformation: DeformationField, location: _Location, frame: int) -> _Frame:
+    """:class:`_Frame` of ``frame`` (cached per location): the gradients ``D' D⁻¹`` of the used tets that are not
+    still (float64, then the proxy's dtype, as ``to_deformed``'s; the identity for degenerate rest tets), their polar
+    rotations and Wigner matrices, in one compiled pass over those tets."""
+    from nerfedit_plugin.fields.splats._deform_kernel import RECORD, tet_tables
+    from nerfedit_plugin.geometry.launch import launch
+
+    with _CACHE_LOCK:
+        if frame in location.frames:
+            location.frames.move_to_end(frame)
+            return location.frames[frame]
+    chosen = np.flatnonzero(~deformation.still_tets(frame)[location.used])
+    n = len(chosen)
+    gradient, identity = np.empty((n, 3, 3)), np.empty(n, dtype=np.bool_)
+    tables = _Tables(np.empty((n, RECORD)), np.empty(n, dtype=np.bool_))
+    launch(
+        tet_tables,
+        chosen,
+        location.used,
+        deformation.tets,
+        location.inverse,
+        location.regular,
+        deformation.deformed_vertices[frame],
+        _single(deformation),
+        gradient,
+        identity,
+        *tables,
+    )
+    slot = np.full(len(deformation.tets), -1, dtype=np.int64)
+    slot[location.used[chosen]] = np.arange(n)
+    result = _Frame(slot, gradient, identity, tables)
+    with _CACHE_LOCK:
+        location.frames[frame] = result
+        while len(location.frames) > FRAMES_KEPT:
+            location.frames.popitem(last=False)
+    return result
+
+
+def _deform_proxy(
+    model: SplatModel, deformation: DeformationField, frame: int
+) -> tuple[SplatModel, DeformReport, Moved]:
+    """:func:`_deform` through a tet proxy on the CPU: the cached location, the frame's per-tet tables, then one
+    compiled pass over the Gaussians (:func:`nerfedit_plugin.fields.splats._deform_kernel.map_gaussians`), which
+    writes the output model in the model's dtype. Equal to the reference through ``to_deformed``."""
+    from nerfedit_plugin.fields.splats._deform_kernel import map_gaussians
+    from nerfedit_plugin.geometry.launch import launch
+
+    frame = deformation._check_frame(frame)
+    arrays = [np.ascontiguousarray(a) for a in model.arrays()]
+    location = _location(deformation, arrays[0])
+    tables = _frame(deformation, location, frame)
+    out = SplatModel(*(np.empty_like(a) for a in arrays))
+    count = len(model)
+    moved, growth = np.empty(count, dtype=np.uint8), np.empty(count)
+    launch(
+        map_gaussians,
+        location.tet,
+        location.bary,
+        tables.slot,
+        deformation.tets,
+        deformation.deformed_vertices[frame],
+        _single(deformation),
+        tables.identity,
+        tables.tables.records,
+        *arrays,
+        *out.arrays(),
+        moved,
+        growth,
+    )
+    index = np.flatnonzero(moved)
+    report = DeformReport(count, count, 0, 0, len(index))
+    if len(index) == 0:
+        return out, report, lambda: (index, np.zeros((0, 3, 3)), np.ones(0))
+    piece = tables.slot[location.tet[index]]
+    if tables.tables.inverted.any():
+        report.inverted = int(tables.tables.inverted[piece].sum())
+    growth = growth[index]
+    report.growth = _growth(growth)
+    return out, report, lambda: (index, tables.gradient[piece], growth)
+
+
+def _single(deformation: DeformationField) -> bool:
+    """Whether the proxy maps in float32 (else float64)."""
+    if deformation.dtype not in (torch.float32, torch.float64):
+        raise NerfEditError(f"the forward map supports float32 and float64 proxies, not {deformation.dtype}")
+    return deformation.dtype == torch.float32
 
 
 def _placement(deformation: ForwardMap | PlacementMap, means: torch.Tensor, frame: int) -> Placement:
