@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import hashlib
 import json
 import os
 import tempfile
@@ -119,14 +120,27 @@ def override(config, assignment: str):
     return dataclasses.replace(config, **{head: value})
 
 
+def configured(name: str, args):
+    """Field ``name``'s default config with the ``--set`` overrides of that field."""
+    config = BACKENDS[name]()
+    for assignment in args.set:
+        field_name, _, rest = assignment.partition(".")
+        if field_name == name:
+            config = override(config, rest)
+    return config
+
+
 def settings(args, name: str) -> dict:
-    """What a row of field ``name`` is measured with (a kept row is reused only under the same settings)."""
+    """What a row of field ``name`` is measured with, its config's options included (a kept row is reused only
+    under the same settings)."""
+    options = json.dumps(dataclasses.asdict(configured(name, args)), sort_keys=True, default=str)
     return {
         "seconds": args.seconds,
         "clock": args.clock,
         "resolution": args.resolution,
         "threads": args.threads,
         "set": sorted(a for a in args.set if a.partition(".")[0] == name),
+        "config_sha256": hashlib.sha256(options.encode()).hexdigest(),
     }
 
 
@@ -148,11 +162,7 @@ def generate(name: str, folder: Path, resolution: int) -> Path:
 
 def measure(scene: str, name: str, data: Path, train, test, args) -> dict:
     """Train ``name``'s default config (with ``--set`` overrides) on a scene; its results row (module docstring)."""
-    config = BACKENDS[name]()
-    for assignment in args.set:
-        field_name, _, rest = assignment.partition(".")
-        if field_name == name:
-            config = override(config, rest)
+    config = configured(name, args)
     config.train = dataclasses.replace(
         config.train,
         max_seconds=args.seconds,

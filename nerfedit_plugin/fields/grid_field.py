@@ -1,5 +1,6 @@
 """Building blocks of the dense-grid field backends (nerf, neus): their shared config, the coarse-to-fine resolution
-check, the colour decoder and the background model's life cycle (:mod:`nerfedit_plugin.fields.background`).
+check, the colour decoder, the appearance features' total variation and the background model's life cycle
+(:mod:`nerfedit_plugin.fields.background`).
 
 Colour: ``rgb = sigmoid(g₁..₃ + MLP([g₁.., SH(d)]))`` — a direct colour from the first three appearance features
 ``g`` of the grid plus, with ``decoder="mlp"``, a view-dependent residual of a one-hidden-layer MLP on all features
@@ -84,11 +85,10 @@ class GridFieldConfig(FieldConfig):
     """Cells per side of the far sphere layer's finest texture level (surroundings far away); 0: no far layer."""
     lr_background: float = 0.1
     """Adam learning rate of the background grid."""
-    appearance_tv: float = 0.0
-    """Weight of the appearance features' total variation (:meth:`GridField.appearance_tv`): keeps smooth colour
-    smooth where the grid's cells are finer than the pixels that pin them (0: off)."""
-    tv_points: int = 4096
-    """Random points per step at whose cells the total variation is evaluated (half of them in occupied cells)."""
+    appearance_tv: float = 0.05
+    """Weight of the appearance features' total variation (:meth:`GridField.appearance_tv`), added to the loss:
+    keeps smooth colour smooth where a grid cell is pinned by few pixels, instead of salt-and-pepper noise
+    (0: off)."""
     train: TrainerConfig = dataclasses.field(default_factory=TrainerConfig)
     """Optimisation budget and schedule."""
 
@@ -150,7 +150,6 @@ def check_grid_config(config: GridFieldConfig) -> None:
         check_option(config, name, size, size == 0 or size >= 32, "0 (off) or at least 32 cells")
     tv = config.appearance_tv
     check_option(config, "appearance_tv", tv, 0 <= tv < math.inf, "a number >= 0 (0: off)")
-    check_option(config, "tv_points", config.tv_points, config.tv_points >= 1, "a positive integer")
     check_option(config, "occupancy_dilation", config.occupancy_dilation, config.occupancy_dilation >= 0, ">= 0")
     check_option(config, "occupancy_warmup", config.occupancy_warmup, config.occupancy_warmup >= 0, ">= 0")
     check_option(config, "occupancy_every", config.occupancy_every, config.occupancy_every >= 1, ">= 1")
@@ -295,19 +294,6 @@ class GridField(Field):
         features = F.embedding(rows, self.grid.table)[..., 1:]  # (M, 8, C)
         a, b = _EDGES.to(rows.device).unbind(0)
         return (features[:, a] - features[:, b]).square().mean()
-
-    def appearance_regularizer(self, generator: torch.Generator) -> Callable[[torch.Tensor | None], torch.Tensor]:
-        """``loss(points)``: ``appearance_tv`` × :meth:`appearance_tv` at ``points``, or at ``tv_points`` fresh
-        :meth:`sample_points` when None; 0 when the weight is 0."""
-        weight = self.config.appearance_tv
-
-        def loss(points: torch.Tensor | None = None) -> torch.Tensor:
-            if weight == 0:
-                return torch.zeros((), device=self.scene_bbox.device)
-            points = self.sample_points(self.config.tv_points, generator) if points is None else points
-            return weight * self.appearance_tv(points)
-
-        return loss
 
     @property
     def view_dependent(self) -> bool:

@@ -50,6 +50,8 @@ class NerfConfig(GridFieldConfig):
     the opaque shell, so skipping the interior saves most samples of solid objects."""
     mesh_level: float = 25.0
     """Default density level of :meth:`NerfField.extract_mesh`."""
+    tv_points: int = 4096
+    """Random points per step at whose cells ``appearance_tv`` is evaluated (half of them in occupied cells)."""
     lr_background: float = 0.3
     """Adam learning rate of the background grid, the model of what lies outside the scene box when the content runs
     out of the frame (scenes, captures, floors); unused on object datasets."""
@@ -57,6 +59,7 @@ class NerfConfig(GridFieldConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         check_option(self, "density_init", self.density_init, 0 < self.density_init < math.inf, "a positive number")
+        check_option(self, "tv_points", self.tv_points, self.tv_points >= 1, "a positive integer")
         threshold, shell, level = self.occupancy_threshold, self.occupancy_shell, self.mesh_level
         check_option(self, "occupancy_threshold", threshold, 0 <= threshold < math.inf, "a number >= 0")
         check_option(self, "occupancy_shell", shell, shell >= 0, ">= 0 (0: the whole interior)")
@@ -125,13 +128,17 @@ class NerfField(GridField):
 
         if self.occupancy is not None and config.carve and not dataset.opaque:
             self.occupancy.carve(dataset.cameras, self.free_depths(dataset).to(self.scene_bbox.device))
-        appearance = self.appearance_regularizer(torch.Generator().manual_seed(trainer.seed))
+        generator = torch.Generator().manual_seed(trainer.seed)
+
+        def regularizer(step: int) -> torch.Tensor:
+            return config.appearance_tv * self.appearance_tv(self.sample_points(config.tv_points, generator))
+
         log = train(
             self,
             dataset,
             trainer,
             param_groups=groups,
-            regularizer=(lambda step: appearance()) if config.appearance_tv > 0 else None,
+            regularizer=regularizer if config.appearance_tv > 0 else None,
             callback=grid_schedule(self),
             eval_dataset=eval_dataset,
         )

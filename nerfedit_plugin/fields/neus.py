@@ -71,7 +71,7 @@ class NeusConfig(GridFieldConfig):
     eikonal_weight: float = 1e-3
     """Weight of the eikonal loss."""
     eikonal_points: int = 4096
-    """Random points per step at which the eikonal loss is evaluated."""
+    """Random points per step at which the eikonal loss (and ``appearance_tv``) is evaluated."""
     anneal_steps: int = 300
     """The renderer's cosine annealing ratio ramps linearly from 0 to 1 (unbiased) over these first steps."""
     occupancy_band: float = 8.0
@@ -234,11 +234,11 @@ class NeusField(GridField):
         trainer = self.prepare_background(dataset, trainer or self.config.train)
         config = self.config
         generator = torch.Generator().manual_seed(trainer.seed)
-        appearance = self.appearance_regularizer(generator)
 
         def regularizer(step: int) -> torch.Tensor:
             points = self.sample_points(config.eikonal_points, generator)
-            return config.eikonal_weight * self.eikonal_loss(points) + appearance(points)
+            loss = config.eikonal_weight * self.eikonal_loss(points)
+            return loss + config.appearance_tv * self.appearance_tv(points) if config.appearance_tv > 0 else loss
 
         def groups() -> list[dict]:
             return [
