@@ -342,13 +342,6 @@ EQUIVALENT: tuple[Equivalent, ...] = (
     ),
     Equivalent(
         "lift",
-        "Lift.report",
-        'flipped = np.einsum("ij,ij->i", self.rest_normals, face_normals(surface, self.rest.faces)) < 0',
-        'flipped = np.einsum("IJ,IJ->I", self.rest_normals, face_normals(surface, self.rest.faces)) < 0',
-        _EINSUM,
-    ),
-    Equivalent(
-        "lift",
         "knn3_displacements",
         "weights = 1.0 / np.maximum(dist, 1e-12)",
         "weights = 2.0 / np.maximum(dist, 1e-12)",
