@@ -1,20 +1,21 @@
 """The editor's interactive loop (docs/benchmarks.md, "The editor").
 
 1. Handle drag on ``sample:bunny`` (28k vertices; bottom fixed, ears moving), per backend: 30 moves of a drag, each
-   the handle move + the preview (arap: a warm-started solve of
-   :data:`deformers.arap.PREVIEW_ITERATIONS`; cage: the bound coordinates; skeleton: the bound
-   skinning weights) + the deformed mesh's positions set in the scene's tensor mesh (normals are recomputed on
-   release; the window's ``add_geometry`` and frame time are not in it). Target ≤ 100 ms per move. Reports the split
-   (solve vs geometry update), the ARAP iterations per move, and the settle on release: the energy gap of the last
-   preview to the converged solve, closed, and its time.
+   what the editor does for a mouse drag's move: the handle move + the drag preview
+   (:meth:`EditorState.preview_drag`; arap: a warm-started solve of :data:`deformers.arap.PREVIEW_ITERATIONS`;
+   cage: the bound coordinates; skeleton: the bound skinning weights) + the shown mesh's positions set in its tensor
+   mesh (:class:`~nerfedit_plugin.viewer.editor.ShownMesh`; normals are recomputed on release; the window's
+   ``add_geometry`` and frame time are not in it). Target ≤ 100 ms per move. Reports which mesh is shown during the
+   drag, the split (solve vs geometry update), the ARAP iterations per move, and the release: the energy gap of the
+   last preview to the converged solve, closed, and the time until the settled mesh is shown.
 2. ``--run RUN``: the "render" action (lift into the proxy + render at 128 px) from a view of the run's mesh, cold
    (proxy from the cache or built, lift factored, kernels compiled) and warm. Target ≤ 2 s warm.
 
 ``--mesh MESH`` drags on another mesh; ``--subdivisions N`` on the bunny Loop-subdivided N times (``bench_scale.py``'s
-meshes; 3: 1.8M vertices, which the ARAP backend edits on its coarse level: each move solves the coarse level and
-carries the fine surface, which is what is shown); on another mesh than the bunny the bunny's drag runs first, as the
-anchor: each backend's median per move is also printed as its ratio to the anchor's, measured in the same run (the
-machine's load moves both alike).
+meshes; 3: 1.8M vertices, which the ARAP backend edits on its coarse level: each move solves the coarse level, which
+is what is shown during the drag; the release carries the fine surface and shows it); on another mesh than the bunny
+the bunny's drag runs first, as the anchor: each backend's median per move is also printed as its ratio to the
+anchor's, measured in the same run (the machine's load moves both alike).
 ``--deformers`` picks the backends.
 
 Usage: ``python bench/bench_editor.py [--run RUN] [--mesh MESH | --subdivisions N] [--deformers arap cage skeleton]``.
@@ -31,7 +32,7 @@ import numpy as np
 
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.viewer.backends import editing_backend
-from nerfedit_plugin.viewer.editor import _mesh, _set_positions
+from nerfedit_plugin.viewer.editor import ShownMesh, _mesh
 from nerfedit_plugin.viewer.editor_state import EditorState
 from nerfedit_plugin.viewer.picking import View
 
@@ -64,7 +65,8 @@ def drag(name: str, mesh: str = "sample:bunny", anchor: float | None = None) -> 
         f"{name}: {mesh} {rest.n_vertices} vertices, bind / factorisation + first preview "
         f"{time.perf_counter() - start:.2f} s"
     )
-    shown = _mesh(state.deformed, rest.faces, (0.7, 0.7, 0.7))
+    shown = ShownMesh(rest.faces)
+    shown.update(state, normals=True)
     solve, update, iterations = [], [], []
     step = np.array([0.004, 0.002, 0.0]) * rest.bbox_diagonal
     for _ in range(MOVES):
@@ -73,18 +75,22 @@ def drag(name: str, mesh: str = "sample:bunny", anchor: float | None = None) -> 
             state.rotate([0.0, 0.0, 1.0], 1.0, record=False)
         else:
             state.translate(step, record=False)
-        vertices = state.preview()
+        state.preview_drag()
         middle = time.perf_counter()
-        _set_positions(shown, vertices, normals=False)
+        mesh = shown.update(state, normals=False)
         update.append(time.perf_counter() - middle)
         solve.append(middle - start)
         iterations.append(state.backend.last_iterations)
     total = 1e3 * (np.array(solve) + np.array(update))
+    live = state.live
+    what = "the mesh" if live is None else f"the backend's live view ({len(live.vertices)} vertices)"
+    print(f"  shown during the drag: {what}")
+    vertices = mesh.vertex.positions.numpy()
     start = time.perf_counter()
-    _set_positions(shown, vertices, normals=True)
+    mesh.compute_vertex_normals()
     normals = time.perf_counter() - start
     start = time.perf_counter()
-    _mesh(vertices, rest.faces, (0.7, 0.7, 0.7))
+    _mesh(vertices, mesh.triangle.indices.numpy(), (0.7, 0.7, 0.7))
     rebuild = time.perf_counter() - start
     counted = f"; {np.mean(iterations):.1f} iterations per move" if name == "arap" else ""
     ratio = "" if anchor is None else f" ({np.median(total) / anchor:.2f}× the anchor's)"
@@ -97,12 +103,17 @@ def drag(name: str, mesh: str = "sample:bunny", anchor: float | None = None) -> 
     )
     start = time.perf_counter()
     settled = state.converge()
+    state.released(settled)
+    shown.update(state, normals=True)
+    took = time.perf_counter() - start
     if settled is not None:
         _, before, after, count = settled
         print(
-            f"  settle on release: energy of the last preview {(before - after) / after:+.1%} above the converged "
-            f"solve, closed in {count} iterations, {time.perf_counter() - start:.2f} s"
+            f"  release: energy of the last preview {(before - after) / after:+.1%} above the converged solve, "
+            f"closed in {count} iterations; the mesh ({rest.n_vertices} vertices) shown settled after {took:.2f} s"
         )
+    else:
+        print(f"  release: the mesh ({rest.n_vertices} vertices) shown after {took:.2f} s")
     start = time.perf_counter()
     state.settle()
     print(f"  settle (the exact `nerfedit edit` solve, bind included): {time.perf_counter() - start:.2f} s")

@@ -13,7 +13,9 @@ of the same mesh reads them. ``report.json`` records the path taken under ``defo
 
 In the editor (:class:`ArapBackend`) the handles sit on mesh vertices; each preview re-solves with a solver
 prefactored for the handle vertices, warm-started, a few iterations, and :meth:`ArapBackend.converge` finishes that
-solve (settle on release).
+solve (settle on release). On the multiresolution path a drag shows the coarse level as solved
+(:meth:`ArapBackend.preview_drag`, a :class:`~nerfedit_plugin.edit.editing.LiveView`: its handles on their coarse
+targets) and the release the fine surface it carries.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import numpy as np
 
 from nerfedit_plugin.edit.coarse import CoarseOptions, cached_coarse_level
 from nerfedit_plugin.edit.deformer import Deformer, DeformerConfig
-from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle
+from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle, LiveView
 from nerfedit_plugin.edit.spec import EditSpec
 from nerfedit_plugin.errors import NerfEditError, check_option
 from nerfedit_plugin.geometry.arap import ArapResult, ArapSolver
@@ -84,9 +86,11 @@ class ArapBackend(EditingBackend):
         """Held by each solve: a settle on release (a worker thread) and the next drag's previews share the solver."""
         self._solver: tuple[bytes, ArapSolver | MultiresArap] | None = None
         self.level = coarse_level(rest, config.coarse_vertices) if config.binds_coarse(rest) else None
-        """The coarse level a large mesh is edited on (:meth:`CoarseOptions.binds_coarse`): each preview solves it and
-        shows the fine surface it carries; None: previews solve the mesh itself."""
+        """The coarse level a large mesh is edited on (:meth:`CoarseOptions.binds_coarse`): each preview solves it,
+        shown as itself during a drag (:meth:`preview_drag`) and as the fine surface it carries otherwise; None:
+        previews solve the mesh itself."""
         self._coarse: np.ndarray | None = None  # the coarse positions of the last preview (multiresolution)
+        self._split: tuple | None = None  # (key, fixed, moving) coarse handle points of the live view
 
     def check_handle(self, indices: np.ndarray, fixed: bool) -> None:
         if len(indices) == len(self.points):
@@ -136,15 +140,51 @@ class ArapBackend(EditingBackend):
         self._coarse = positions
         return self._solver[1].surface(positions, targets)[0]
 
+    def _solve(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> tuple:
+        """The preview solve of the level solved (:attr:`iterations`, warm-started) → ``(result, fine handles, their
+        targets)``; the caller holds :attr:`lock`."""
+        solver, targets, start, indices, fine_targets = self._problem(spec, frame, deformed)
+        result = solver.solve(
+            targets, initial=start, max_iterations=self.iterations, tolerance=self.config.tolerance, anderson=0
+        )
+        self.last_iterations = result.iterations
+        return result, indices, fine_targets
+
     def preview(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> np.ndarray:
         with self.lock:
-            solver, targets, start, indices, fine_targets = self._problem(spec, frame, deformed)
-            result = solver.solve(
-                targets, initial=start, max_iterations=self.iterations, tolerance=self.config.tolerance, anderson=0
-            )
-            shown = self._shown(result.vertices, indices, fine_targets)
-        self.last_iterations = result.iterations
-        return shown
+            result, indices, fine_targets = self._solve(spec, frame, deformed)
+            return self._shown(result.vertices, indices, fine_targets)
+
+    def preview_drag(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> np.ndarray | LiveView:
+        """The mesh itself as :meth:`preview` poses it, or, on the multiresolution path, the same coarse solve shown
+        as the coarse level (:meth:`MultiresArap.coarse_surface`; its handles :attr:`MultiresArap.fixed` exactly
+        on their coarse targets, moving where a moving handle's vertex lies in their cluster) without carrying the
+        fine surface: :meth:`converge` carries it on release, from the same coarse positions as after the same
+        :meth:`preview` calls."""
+        if self.level is None:
+            return self.preview(spec, frame, deformed)
+        with self.lock:
+            result, _, _ = self._solve(spec, frame, deformed)
+            self._coarse = result.vertices
+            multires = self._solver[1]
+            fixed, moving = self._coarse_handles(spec, multires)
+            return LiveView(multires.coarse_surface(result.vertices), self.level.coarse.faces, fixed, moving)
+
+    def _coarse_handles(self, spec: EditSpec, multires: MultiresArap) -> tuple[np.ndarray, np.ndarray]:
+        """The coarse handles (:attr:`MultiresArap.fixed`) split into ``(fixed, moving)``: moving those whose cluster
+        holds a vertex of a moving handle of ``spec`` (kept while the solver and the handles' selections are the
+        same objects)."""
+        key = (multires, *(h.selection for h in spec.handles))
+        if self._split is not None and len(self._split[0]) == len(key):
+            if all(a is b for a, b in zip(self._split[0], key)):
+                return self._split[1], self._split[2]
+        moved = [
+            h.selection.indices(self.points, spec.source, self.faces) for h in spec.handles if h.transform is not None
+        ]
+        clusters = np.unique(self.level.owner[np.concatenate(moved)]) if moved else np.zeros(0, dtype=np.int64)
+        held = np.isin(multires.fixed, clusters)
+        self._split = (key, multires.fixed[~held], multires.fixed[held])
+        return self._split[1], self._split[2]
 
     def converge(self, spec, frame, deformed, wanted):
         with self.lock:

@@ -2,8 +2,9 @@
 deformer. A deformer that can be edited names its :class:`EditingBackend` subclass in :attr:`Deformer.editor
 <nerfedit_plugin.edit.deformer.Deformer.editor>`; the backend says what the handles grab (its control
 :attr:`~EditingBackend.points`), how the handles become the deformer's edit spec (:meth:`~EditingBackend.spec_data`,
-read back by :meth:`~EditingBackend.handles_of`), how a pose is previewed (:meth:`~EditingBackend.preview`) and what
-the viewer draws over the mesh (:meth:`~EditingBackend.lines`).
+read back by :meth:`~EditingBackend.handles_of`), how a pose is previewed (:meth:`~EditingBackend.preview`; during a
+drag :meth:`~EditingBackend.preview_drag`, which may show a :class:`LiveView` of a surface of the backend's own
+instead of the mesh) and what the viewer draws over the mesh (:meth:`~EditingBackend.lines`).
 
 A handle is an :class:`EditorHandle`: control points held fixed or moved by a similarity ``x ↦ c + s R (x − c) + τ``
 about a rest pivot ``c`` — exactly an edit spec's transform at t = 1, and at every t of an animation (the spec's
@@ -69,6 +70,18 @@ class EditorHandle:
         if self.scale != 1.0:
             out["scale"] = float(self.scale)
         return out
+
+
+@dataclasses.dataclass(frozen=True)
+class LiveView:
+    """What the editor shows while a handle is held, when it is not the mesh itself: a surface of the backend's own,
+    ``vertices (N,3)`` float64 over ``faces (F,3)`` int (e.g. the coarse level a large mesh is solved on, as solved),
+    and the handle points drawn on it, ``fixed`` and ``moving`` (int64 indices into ``vertices``)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    fixed: np.ndarray
+    moving: np.ndarray
 
 
 class EditingBackend(abc.ABC):
@@ -152,6 +165,12 @@ class EditingBackend(abc.ABC):
     def preview(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> np.ndarray:
         """The mesh (V,3) for ``spec`` (parsed from :meth:`spec_data`) at ``frame`` (``deformed``: the last preview,
         a warm start); sets :attr:`posed`."""
+
+    def preview_drag(self, spec: EditSpec, frame: int, deformed: np.ndarray) -> np.ndarray | LiveView:
+        """One move of a drag (the handle still held) → what is shown until the next move: the mesh (V,3) as
+        :meth:`preview` poses it (the default), or a :class:`LiveView`. After a live view the mesh is posed on
+        release: by :meth:`converge`, or, when that returns None, by :meth:`preview`."""
+        return self.preview(spec, frame, deformed)
 
     def converge(
         self, spec: EditSpec, frame: int, deformed: np.ndarray, wanted: Callable[[], bool]

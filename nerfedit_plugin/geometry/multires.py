@@ -291,12 +291,29 @@ class MultiresArap:
         into ``out`` (V,3) float64 or float32 when given (computed in float64 either way), else a new float64 array."""
         moved = np.array(coarse_positions, dtype=np.float64)
         rotations = self.solver.vertex_rotations(moved)
+        self._place_outside(moved, rotations)
+        return carry(self.level, self.rest.vertices, moved, rotations, out)
+
+    def coarse_surface(self, coarse_positions: np.ndarray) -> np.ndarray:
+        """Deformed coarse vertices (C,3) float64 → the coarse level as :meth:`fine` carries it (a new (C,3)
+        float64 array): the solved vertices as given, each coarse vertex outside the solve moved rigidly with its
+        nearest solved one (its rotation ``R_c``: ``y_k = y_c + R_c (q_k − q_c)``), but the coarse handles
+        (:attr:`fixed`), which stay as given: on their targets after a solve (a handle outside the solve is a vertex
+        of no coarse face, a corner of no fine vertex)."""
+        moved = np.array(coarse_positions, dtype=np.float64)
+        if len(self._carried):
+            self._place_outside(moved, self.solver.vertex_rotations(moved))
+            moved[self.fixed] = coarse_positions[self.fixed]
+        return moved
+
+    def _place_outside(self, moved: np.ndarray, rotations: np.ndarray) -> None:
+        """Move the coarse vertices outside the solve with their nearest solved one, in place: ``y_k = y_c + R_c (q_k
+        − q_c)``, ``R_k = R_c``."""
         if len(self._carried):
             q, c = self.level.coarse.vertices, self._carrier
             turned = np.einsum("kab,kb->ka", rotations[c], q[self._carried] - q[c])
             moved[self._carried] = moved[c] + turned
             rotations[self._carried] = rotations[c]
-        return carry(self.level, self.rest.vertices, moved, rotations, out)
 
     def surface(
         self, coarse_positions: np.ndarray, targets: np.ndarray, out: np.ndarray | None = None

@@ -5,9 +5,10 @@ What is picked depends on the deformer (``--deformer``): the control points of i
 (:attr:`Deformer.editor <nerfedit_plugin.edit.deformer.Deformer.editor>`: mesh vertices, or points of its own, drawn
 with its overlay layer). Mouse (in the 3-D view): drag orbits; **Ctrl+click** picks the vertex under the cursor,
 **Ctrl+drag** selects the visible vertices in a box, **Alt+drag** brushes them; **Shift+drag** moves the active
-moving handle in the view plane (each move re-poses the mesh through the backend's preview); when the drag ends an
-iterative preview's solve is finished in a worker thread (settle on release; the status line reports the energy gap
-closed). Keys: **F** / **M** mark the
+moving handle in the view plane (each move re-poses through the backend's drag preview: the mesh, or what the backend
+shows live instead — for ARAP on a mesh above the multiresolution threshold, the coarse level as solved, its handles
+on their targets); when the drag ends an iterative preview's solve is finished in a worker thread and the mesh shown
+(settle on release; the status line reports the energy gap closed). Keys: **F** / **M** mark the
 selection fixed / moving, **G** grows it by the panel's geodesic radius, **Esc** clears it, arrows nudge the active
 handle in the view plane and **PgUp/PgDn** along the view direction, **Q/E** turn it ±5° about the view axis,
 **+/−** scale it ×1.05, **Z / Y** undo / redo, **Enter** settles (the exact solve ``nerfedit edit`` runs), **R**
@@ -92,7 +93,7 @@ class Editor:
         self._pending = np.zeros(2)  # handle drag in pixels not yet solved
         self._flush_posted = False
         self._proxy: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # rest, deformed, tets of the last render
-        self._shown_mesh: o3d.t.geometry.TriangleMesh | None = None  # the deformed mesh in the scene (moves update it)
+        self._shown = ShownMesh(state.mesh.faces)  # the deformed layer's tensor meshes (moves update them)
         layer = state.backend.layer
         self.layers = EDITOR_LAYERS + ((layer,) if layer else ())
         self.shown.update({layer: True} if layer else {})
@@ -355,9 +356,9 @@ class Editor:
         lit = _material("defaultLit")
         if self.shown["rest"]:
             scene.add_geometry("rest", _mesh(state.mesh.vertices, state.mesh.faces, (0.8, 0.8, 0.78)), lit)
-        self._shown_mesh = _mesh(state.deformed, state.mesh.faces, (0.72, 0.74, 0.8))
+        self._shown.mesh = None  # rebuilt, normals included
         if self.shown["deformed"]:
-            scene.add_geometry("deformed", self._shown_mesh, lit)
+            scene.add_geometry("deformed", self._shown.update(state, normals=True), lit)
         self._draw_controls()
         if len(state.selection):
             parts = [(state.selection, COLORS["selection"])]
@@ -381,8 +382,15 @@ class Editor:
             if scene.has_geometry(name):
                 scene.remove_geometry(name)
         if self.shown["handles"] and state.handles:
-            parts = [(h.indices, COLORS["fixed" if h.fixed else "moving"]) for h in state.handles]
-            scene.add_geometry("handles", _points(state.posed_points, parts), _material("defaultUnlit", 6.0))
+            live = state.live
+            if live is None:
+                points = state.posed_points
+                parts = [(h.indices, COLORS["fixed" if h.fixed else "moving"]) for h in state.handles]
+            else:
+                points = live.vertices
+                parts = [(i, COLORS[kind]) for i, kind in ((live.fixed, "fixed"), (live.moving, "moving")) if len(i)]
+            if parts:
+                scene.add_geometry("handles", _points(points, parts), _material("defaultUnlit", 6.0))
         lines = state.backend.lines()
         if lines is not None and self.shown[state.backend.layer]:
             points, edges = lines
@@ -393,14 +401,15 @@ class Editor:
             scene.add_geometry("controls", wire, _material("unlitLine", 2.0))
 
     def update_deformed(self, normals: bool = False) -> float:
-        """Redraw the deformed mesh — its vertex positions set in the kept tensor mesh; its normals recomputed only
-        with ``normals`` (a drag keeps the last ones) — and the handles and overlay → seconds taken."""
+        """Redraw the deformed layer — the mesh, or the state's live view during a drag, its vertex positions set in
+        the kept tensor mesh (:class:`ShownMesh`); its normals recomputed only with ``normals`` (a drag keeps the last
+        ones) — and the handles and overlay → seconds taken."""
         start = time.perf_counter()
         scene, state = self.scene.scene, self.state
         if self.shown["deformed"]:
-            _set_positions(self._shown_mesh, state.deformed, normals)
+            shown = self._shown.update(state, normals)
             scene.remove_geometry("deformed")
-            scene.add_geometry("deformed", self._shown_mesh, _material("defaultLit"))
+            scene.add_geometry("deformed", shown, _material("defaultLit"))
         self._draw_controls()
         self.window.post_redraw()
         return time.perf_counter() - start
@@ -448,16 +457,20 @@ class Editor:
         first = self._drag is not None and not self._drag["moved"]
         if self._drag is not None:
             self._drag["moved"] = True
-        self.move(lambda: self.drag(dx, dy, record=first or self._drag is None))
+        self.move(lambda: self.drag(dx, dy, record=first or self._drag is None), live=True)
 
-    def move(self, action: Callable[[], str], blocking: bool = False) -> None:
-        """Apply a move of the active handle, re-pose the mesh (warm-started) and redraw it; the time from the move
-        to the updated scene goes to the status line. Outside a drag (its end, a key, numbers) the move is then
-        settled (:meth:`release`; ``blocking``: before returning)."""
+    def move(self, action: Callable[[], str], blocking: bool = False, live: bool = False) -> None:
+        """Apply a move of the active handle, re-pose the mesh (warm-started; ``live``, a mouse drag's move: as the
+        backend shows a drag, :meth:`EditorState.preview_drag`) and redraw it; the time from the move to the updated
+        scene goes to the status line. Outside a drag (its end, a key, numbers) the move is then settled and the mesh
+        shown (:meth:`release`; ``blocking``: before returning)."""
         start = time.perf_counter()
         try:
             message = action()
-            self.state.preview()
+            if live:
+                self.state.preview_drag()
+            else:
+                self.state.preview()
         except NerfEditError as exc:
             self.say(str(exc), error=True)
             return
@@ -480,8 +493,11 @@ class Editor:
         def show(done) -> None:
             if not wanted():
                 return
-            if done is not None:
-                self.state.deformed = done[0]
+            try:
+                self.state.released(done)
+            except NerfEditError as exc:
+                self.say(str(exc), error=True)
+                return
             self.update_deformed(normals=True)
             if done is not None:
                 _, before, after, iterations = done
@@ -603,6 +619,33 @@ def check_script(steps: list[dict], where: str) -> None:
             raise NerfEditError(
                 f"{where}: step {i} {json.dumps(step)}: unknown step (expected one of {', '.join(SCRIPT_STEPS)})"
             )
+
+
+class ShownMesh:
+    """The tensor meshes of the deformed layer: :attr:`mesh` over the rest ``faces`` and, while the state shows a
+    live view (:attr:`EditorState.live`), one over the view's faces (made at its first move, kept while its faces
+    are the same array). :meth:`update` is what a move costs the scene: the shown mesh's positions set."""
+
+    def __init__(self, faces: np.ndarray, color=(0.72, 0.74, 0.8)) -> None:
+        self.faces, self.color = faces, color
+        self.mesh: o3d.t.geometry.TriangleMesh | None = None
+        self._live: tuple[np.ndarray, o3d.t.geometry.TriangleMesh] | None = None
+
+    def update(self, state: EditorState, normals: bool) -> o3d.t.geometry.TriangleMesh:
+        """The tensor mesh to show for ``state``, its positions set to the live view's vertices or to
+        :attr:`EditorState.deformed` (normals recomputed with ``normals``; a mesh made here has them)."""
+        live = state.live
+        if live is not None:
+            if self._live is not None and self._live[0] is live.faces:
+                _set_positions(self._live[1], live.vertices, normals)
+            else:
+                self._live = (live.faces, _mesh(live.vertices, live.faces, self.color))
+            return self._live[1]
+        if self.mesh is None:
+            self.mesh = _mesh(state.deformed, self.faces, self.color)
+        else:
+            _set_positions(self.mesh, state.deformed, normals)
+        return self.mesh
 
 
 def _mesh(vertices: np.ndarray, faces: np.ndarray, color) -> o3d.t.geometry.TriangleMesh:

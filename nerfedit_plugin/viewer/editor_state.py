@@ -8,6 +8,9 @@ editor shows what the command will compute (a handle's index selection is parsed
 against the control points, once per handle set: a drag changes only the active handle's transform):
 
 - :meth:`EditorState.preview` poses the mesh after a move through the backend (prefactored or bound once);
+- :meth:`EditorState.preview_drag` poses one move of a drag as the backend shows it live: the mesh, or a
+  :class:`~nerfedit_plugin.edit.editing.LiveView` of its own (:attr:`EditorState.live`; e.g. the coarse level of a
+  large mesh), replaced by the mesh on release (:meth:`EditorState.released`);
 - :meth:`EditorState.converge` finishes an iterative preview (settle on release) and reports the energy gap closed;
 - :meth:`EditorState.settle` runs the deformer plugin on the spec exactly as ``nerfedit edit`` does (bind, deform):
   its frames are what a saved spec reproduces bit for bit.
@@ -31,7 +34,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial.transform import Rotation
 
 from nerfedit_plugin.edit.deformer import checked_frames, mesh_digest
-from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle
+from nerfedit_plugin.edit.editing import EditingBackend, EditorHandle, LiveView
 from nerfedit_plugin.edit.selection import Selection, parse_selection
 from nerfedit_plugin.edit.selection_file import write_selection
 from nerfedit_plugin.edit.spec import EditSpec, Handle, load_edit_spec, parse_edit_spec
@@ -103,6 +106,9 @@ class EditorState:
         self.redo_stack: list[Snapshot] = []
         self.deformed = self.mesh.vertices.copy()
         """(V,3) float64: the surface as last solved (rest while there are no handles)."""
+        self.live: LiveView | None = None
+        """What a drag shows instead of the mesh since the last :meth:`preview_drag` (:attr:`deformed` is then the
+        mesh as last posed before it), else None: the mesh at :attr:`deformed` is shown."""
         self.settled: np.ndarray | None = None
         """(frames,V,3) float64 from :meth:`settle` for the handles as they are now, else None."""
         self._edges: sp.csr_matrix | None = None
@@ -366,10 +372,33 @@ class EditorState:
     def preview(self) -> np.ndarray:
         """Pose the mesh for the handles as they are (frame :attr:`frame`) through the backend, warm-started from the
         last preview → :attr:`deformed` (V,3). No handles: the rest pose."""
+        self.live = None
         if not self.handles:
             self.deformed, self.backend.posed = self.mesh.vertices.copy(), self.backend.points
             return self.deformed
         self.deformed = self.backend.preview(self.spec(), self.frame, self.deformed)
+        return self.deformed
+
+    def preview_drag(self) -> np.ndarray | LiveView:
+        """One move of a drag through :meth:`~nerfedit_plugin.edit.editing.EditingBackend.preview_drag` → the mesh
+        (V,3) (:attr:`deformed`, as :meth:`preview` poses it) or the backend's :class:`LiveView` (:attr:`live`)."""
+        if not self.handles:
+            return self.preview()
+        shown = self.backend.preview_drag(self.spec(), self.frame, self.deformed)
+        if isinstance(shown, LiveView):
+            self.live = shown
+        else:
+            self.live, self.deformed = None, shown
+        return shown
+
+    def released(self, done: tuple | None) -> np.ndarray:
+        """After a drag's moves, the mesh shown on release → :attr:`deformed` (:attr:`live` cleared): ``done`` (what
+        :meth:`converge` returned) its vertices; None: the mesh as it is, posed by :meth:`preview` when a live view
+        was shown."""
+        if done is not None:
+            self.deformed, self.live = done[0], None
+        elif self.live is not None:
+            self.preview()
         return self.deformed
 
     def converge(self, wanted: Callable[[], bool] = lambda: True) -> tuple[np.ndarray, float, float, int] | None:
@@ -391,7 +420,7 @@ class EditorState:
         model, spec, digest = self.deformer.setup(), self.spec(), mesh_digest(self.mesh)
         model.bind(self.mesh, spec)
         self.settled = checked_frames(model, model.deform(), self.mesh, spec, digest)
-        self.deformed = self.settled[self.frame].copy()
+        self.deformed, self.live = self.settled[self.frame].copy(), None
         return self.settled
 
     def set_frame(self, frame: int) -> None:
@@ -400,7 +429,7 @@ class EditorState:
             raise NerfEditError(f"frame: {frame} out of range for {self.frames} frame(s)")
         self.frame = frame
         if self.settled is not None:
-            self.deformed = self.settled[frame].copy()
+            self.deformed, self.live = self.settled[frame].copy(), None
 
     def set_frames(self, frames: int) -> str:
         """Make the spec an animation of ``frames`` frames (1: a single pose); the last frame is shown."""

@@ -377,3 +377,100 @@ def test_the_shown_mesh_takes_the_positions_rounded_once_and_owns_them(bone):
     expected = moved.astype(np.float32)
     moved += 1.0  # the caller's array is not the mesh's
     np.testing.assert_array_equal(shown.vertex.positions.numpy(), expected)
+
+
+def _coarse_drag(bone):
+    """An editor on the bone forced onto the multiresolution path, its ends the fixed and the moving handle."""
+    from deformers.arap import ArapConfig
+
+    config = ArapConfig(multiresolution="on", coarse_vertices=bone.n_vertices // 3)
+    state = EditorState(editing_backend("arap", bone, config=config))
+    fixed, moving = _ends(bone)
+    state.select(fixed)
+    state.mark(True)
+    state.select(moving)
+    state.mark(False)
+    return state
+
+
+def test_a_drag_on_the_coarse_level_shows_it_with_its_handles_on_their_targets(bone):
+    """During a drag above the threshold the shown surface is the coarse level as solved: its faces, the coarse
+    handles (fixed and moving, together the solver's) exactly on their coarse targets; the mesh is left as posed."""
+    state = _coarse_drag(bone)
+    rest = state.deformed.copy()
+    backend, level = state.backend, state.backend.level
+    for _ in range(3):
+        state.translate([0.0, 0.02 * bone.bbox_diagonal, 0.0], record=False)
+        live = state.preview_drag()
+        assert live is state.live and live.faces is level.coarse.faces
+        assert live.vertices.shape == level.coarse.vertices.shape
+        multires = backend.solver(state.targets()[0])
+        indices, targets = _fresh(state)
+        coarse_targets = multires.coarse_targets(targets)[0]
+        assert np.array_equal(np.union1d(live.fixed, live.moving), multires.fixed)
+        assert len(live.moving) and not np.intersect1d(live.fixed, live.moving).size
+        assert np.array_equal(live.vertices[multires.fixed], coarse_targets)
+        moved = np.isin(live.moving, level.owner[_ends(bone)[1]])
+        assert moved.all()
+    assert np.array_equal(state.deformed, rest)
+
+
+def test_the_release_after_a_coarse_drag_shows_the_fine_surface_the_settled_solve_gives(bone):
+    """Release after live coarse moves = release after the same moves previewed on the fine surface (today's drag):
+    the same coarse solves, so the same converged fine surface, bit for bit, handle vertices on their targets."""
+    live_state, fine_state = _coarse_drag(bone), _coarse_drag(bone)
+    for _ in range(3):
+        for state in (live_state, fine_state):
+            state.translate([0.0, 0.02 * bone.bbox_diagonal, 0.0], record=False)
+        live_state.preview_drag()
+        fine_state.preview()
+    expected = fine_state.converge()
+    done = live_state.converge()
+    shown = live_state.released(done)
+    assert live_state.live is None and shown is live_state.deformed
+    np.testing.assert_array_equal(shown, expected[0])
+    assert done[1:] == expected[1:]
+    indices, targets = _fresh(live_state)
+    assert np.array_equal(shown[indices], targets[0])
+
+
+def test_the_default_drag_hook_shows_the_mesh_as_the_preview_poses_it(bone):
+    """A backend that does not override ``preview_drag`` (the direct ARAP path, the cage backend) shows the mesh
+    during a drag exactly as :meth:`EditorState.preview` poses it; the release keeps it."""
+    from nerfedit_plugin.edit.editing import EditingBackend
+
+    for name in ("arap", "cage"):
+        dragged, previewed = (EditorState(editing_backend(name, bone)) for _ in range(2))
+        assert type(dragged.backend).preview_drag is EditingBackend.preview_drag or name == "arap"
+        for state in (dragged, previewed):
+            points = state.backend.points
+            state.select(np.flatnonzero(points[:, 1] >= np.quantile(points[:, 1], 0.8)))
+            state.mark(False)
+        for _ in range(2):
+            for state in (dragged, previewed):
+                state.translate([0.01, 0.0, 0.0], record=False)
+            shown = dragged.preview_drag()
+            assert dragged.live is None and shown is dragged.deformed
+            np.testing.assert_array_equal(shown, previewed.preview())
+        assert dragged.released(None) is dragged.deformed
+
+
+def test_a_live_view_of_a_backend_without_converge_is_replaced_by_the_preview_on_release(bone):
+    """The contract's release for a backend whose drag shows a live view and whose previews are exact (``converge``
+    None; the cage's bound coordinates): the mesh as ``preview`` poses it."""
+    from nerfedit_plugin.edit.editing import LiveView
+
+    state = EditorState(editing_backend("cage", bone))
+    backend = state.backend
+    points = backend.points
+    state.select(np.flatnonzero(points[:, 1] >= np.quantile(points[:, 1], 0.8)))
+    state.mark(False)
+    state.translate([0.0, 0.0, 0.02])
+    empty = np.zeros(0, dtype=np.int64)
+    backend.preview_drag = lambda spec, frame, deformed: LiveView(points[:3], np.array([[0, 1, 2]]), empty, empty)
+    before = state.deformed.copy()
+    assert isinstance(state.preview_drag(), LiveView) and np.array_equal(state.deformed, before)
+    assert state.converge() is None
+    shown = state.released(None)
+    assert state.live is None and not np.array_equal(shown, before)
+    np.testing.assert_array_equal(shown, backend.preview(state.spec(), state.frame, before))
