@@ -320,6 +320,7 @@ class Editor:
         if self.preview is None:
             raise NerfEditError("render: needs a trained field (open the editor with --run RUN)")
         start = time.perf_counter()
+        self.state.released(None)  # the mesh, posed, when a drag's live view is shown (keys during a drag)
         view = self.view()
         before = self.preview.unedited(view)
         after = self.preview.edited(view, self.state.deformed)
