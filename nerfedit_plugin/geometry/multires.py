@@ -163,6 +163,7 @@ class MultiresArap:
             self.fixed = np.flatnonzero(fixed)
             self._partial = self.fixed[held[self.fixed] < members[self.fixed]]
         self._targets_map, self._similarity = self._target_weights()
+        self._rest_handles = rest.vertices[self.handles]  # (H,3): what coarse_targets subtracts on every call
         stray = ~rest.referenced()  # vertices of no face
         self._stray = np.flatnonzero(stray)
         handled = np.zeros(n, dtype=bool)
@@ -199,7 +200,7 @@ class MultiresArap:
         if self.level.is_identity:
             return targets
         frames, h = targets.shape[:2]
-        moves = (targets - self.rest.vertices[self.handles]).transpose(1, 0, 2).reshape(h, 3 * frames)
+        moves = (targets - self._rest_handles).transpose(1, 0, 2).reshape(h, 3 * frames)
         weighed = (self._targets_map @ moves).reshape(-1, frames, 3).transpose(1, 0, 2)  # (F, Hc + 4m, 3)
         hc = len(self.fixed)
         out = self.level.coarse.vertices[self.fixed] + weighed[:, :hc]
