@@ -191,6 +191,11 @@ class DeformationField:
             )
         return self._frames[frame]
 
+    def locate_rest(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rest tet ``(M,)`` (-1 outside the proxy) and barycentrics ``(M,4)`` of points ``x (M,3)`` in the field's
+        dtype, by the rest locator :meth:`bend` and :meth:`to_deformed` use (exact: the tet brute force picks)."""
+        return self._rest().locate(torch.as_tensor(x).to(device=self.device, dtype=self.dtype).reshape(-1, 3))
+
     def _rest(self) -> TetLocator:
         if self._rest_locator is None:
             self._rest_locator = self._locator(self.rest_vertices)

@@ -320,8 +320,7 @@ def _location(deformation: DeformationField, means: np.ndarray) -> _Location:
                     entries.remove(entry)
                     entries.append(entry)
                     return entry
-    x = torch.from_numpy(np.ascontiguousarray(means)).to(deformation.dtype)
-    tet, bary = deformation._rest().locate(x)
+    tet, bary = deformation.locate_rest(torch.from_numpy(np.ascontiguousarray(means)))
     tet = tet.numpy()
     used = np.unique(tet)
     used = used[used >= 0]
