@@ -12,25 +12,12 @@ from scipy.spatial.transform import Rotation
 from nerfedit_plugin.edit.spec import parse_edit_spec
 from nerfedit_plugin.geometry.mesh import SurfaceMesh
 from nerfedit_plugin.geometry.multires import MultiresArap, carry, coarse_level
-
-
-def tube(rings: int = 61, around: int = 32) -> SurfaceMesh:
-    """An open bumpy tube of radius 0.2 along z ∈ [0, 2]."""
-    z = np.linspace(0.0, 2.0, rings)
-    a = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
-    zz, aa = np.meshgrid(z, a, indexing="ij")
-    radius = 0.2 + 0.01 * np.sin(6 * aa) * np.sin(20 * zz)
-    vertices = np.stack([radius * np.cos(aa), radius * np.sin(aa), zz], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
-    v00, v01 = i * around + j, i * around + (j + 1) % around
-    v10, v11 = v00 + around, v01 + around
-    faces = np.concatenate([np.stack([v00, v01, v11], -1).reshape(-1, 3), np.stack([v00, v11, v10], -1).reshape(-1, 3)])
-    return SurfaceMesh(vertices, faces)
+from tests.deformers.test_arap_multires import bumpy_cylinder
 
 
 @pytest.fixture(scope="module")
 def mesh() -> SurfaceMesh:
-    return tube()
+    return bumpy_cylinder(61, 32)  # an open bumpy tube of radius 0.2 along z ∈ [0, 2]
 
 
 def straightforward_targets(solver: MultiresArap, targets: np.ndarray) -> np.ndarray:

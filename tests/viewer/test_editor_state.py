@@ -36,6 +36,16 @@ def _ends(mesh):
     return np.flatnonzero(x <= low), np.flatnonzero(x >= high)
 
 
+def _hold_ends(state, mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Make the mesh's two ends (:func:`_ends`) a fixed and a moving handle of ``state``; returns their vertices."""
+    fixed, moving = _ends(mesh)
+    state.select(fixed)
+    state.mark(True)
+    state.select(moving)
+    state.mark(False)
+    return fixed, moving
+
+
 def _edited(mesh):
     state = _state(mesh)
     fixed, moving = _ends(mesh)
@@ -190,11 +200,7 @@ def test_skeleton_backend_turns_joints_and_saves_a_reproducible_spec(bone, tmp_p
 
 def test_undo_redo_and_a_drag_is_one_step(bone):
     state = _state(bone)
-    fixed, moving = _ends(bone)
-    state.select(fixed)
-    state.mark(True)
-    state.select(moving)
-    state.mark(False)
+    fixed, moving = _hold_ends(state, bone)
     state.translate([0.01, 0, 0])
     for _ in range(5):
         state.translate([0.01, 0, 0], record=False)  # the rest of a drag
@@ -300,11 +306,7 @@ def test_a_large_mesh_is_edited_on_its_coarse_level(bone):
     config = ArapConfig(multiresolution="on", coarse_vertices=bone.n_vertices // 3)
     state = EditorState(editing_backend("arap", bone, config=config))
     assert state.backend.level is not None and state.backend.level.coarse.n_vertices < bone.n_vertices // 2
-    fixed, moving = _ends(bone)
-    state.select(fixed)
-    state.mark(True)
-    state.select(moving)
-    state.mark(False)
+    _hold_ends(state, bone)
     state.translate([0.0, 0.1 * bone.bbox_diagonal, 0.0])
     preview = state.preview()
     indices, targets = state.targets()
@@ -327,11 +329,7 @@ def test_the_drag_spec_equals_the_spec_parsed_afresh(bone):
     """The spec a drag reuses (index selections parsed, and resolved, once per handle set) gives the handle points and
     targets of its data parsed and resolved afresh, through moves, a new handle, an overlapping one and undo."""
     state = _state(bone)
-    fixed, moving = _ends(bone)
-    state.select(fixed)
-    state.mark(True)
-    state.select(moving)
-    state.mark(False)
+    fixed, moving = _hold_ends(state, bone)
     checks = [
         lambda: state.translate([0.01, 0.02, 0.0]),
         lambda: state.translate([0.01, 0.0, 0.0], record=False),
@@ -352,15 +350,7 @@ def test_the_drag_spec_equals_the_spec_parsed_afresh(bone):
 
 
 def test_drag_previews_on_the_coarse_level_keep_handles_exact(bone):
-    from deformers.arap import ArapConfig
-
-    config = ArapConfig(multiresolution="on", coarse_vertices=bone.n_vertices // 3)
-    state = EditorState(editing_backend("arap", bone, config=config))
-    fixed, moving = _ends(bone)
-    state.select(fixed)
-    state.mark(True)
-    state.select(moving)
-    state.mark(False)
+    state = _coarse_drag(bone)
     for _ in range(3):
         state.translate([0.0, 0.02 * bone.bbox_diagonal, 0.0], record=False)
         preview = state.preview()
@@ -385,11 +375,7 @@ def _coarse_drag(bone):
 
     config = ArapConfig(multiresolution="on", coarse_vertices=bone.n_vertices // 3)
     state = EditorState(editing_backend("arap", bone, config=config))
-    fixed, moving = _ends(bone)
-    state.select(fixed)
-    state.mark(True)
-    state.select(moving)
-    state.mark(False)
+    _hold_ends(state, bone)
     return state
 
 
