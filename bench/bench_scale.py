@@ -1,4 +1,4 @@
-"""Edits at scale (issue 18, docs/benchmarks.md): the ARAP head edit on the bunny and its Loop subdivisions.
+"""Edits at scale (docs/benchmarks.md): the ARAP head edit on the bunny and its Loop subdivisions.
 
 ``sample:bunny`` (28k vertices) and 1–3 Loop subdivisions (pymeshlab ``meshing_surface_subdivision_loop``: 112k,
 449k, 1.8M; cached in /tmp), ``configs/arap_bunny_head.json``, ``nerfedit_plugin.pipeline.edit.run_edit`` with the
@@ -15,10 +15,10 @@ E ≤ (1 + 10⁻³) E_ref and their CPU time (the run's CPU per iteration × ite
 ``ArapSolver.solve`` (level by level, the methods interleaved, so both see the same machine load).
 
 ``--accuracy`` instead compares the deformer's result (its defaults, which take the multiresolution path above
-``coarse_above`` vertices; the direct solve; the multiresolution path forced at ``--coarse``
-vertices) with the converged direct solve (tolerance 1e-10 from rest, at most 3000 L-BFGS iterations; cached in
-/tmp): mean and max vertex distance in units of the bbox diagonal, the path taken, the coarse size, the folded faces
-and the wall time of bind + deform.
+``coarse_above`` vertices; the direct solve; the multiresolution path forced at ``--coarse`` vertices; the
+multiresolution path polished by each ``--polish`` N fine iterations) with the converged direct solve (tolerance
+1e-10 from rest, at most 3000 L-BFGS iterations; cached in /tmp): mean and max vertex distance in units of the bbox
+diagonal, the path taken, the coarse size, the folded faces and the wall time of bind + deform.
 
 ``--binds`` times the skeleton (``configs/skeleton_bunny_pose.json``, bone heat) and cage
 (``configs/cage_bunny_auto.json``, automatic cage, mean value coordinates) binds, each in its own subprocess: on the
@@ -30,7 +30,7 @@ the direct bind's, in units of the bbox diagonal, and its largest displacement f
 the demo's run extracted at 640³, ``nerfedit extract --run RUN --resolution 640``, with the demo's ``nod.json``).
 
 Usage: ``python bench/bench_scale.py [--levels 0 1 2 3] [--mesh MESH --edit SPEC] [--solver [--method lbfgs
-anderson] | --accuracy [--coarse N] | --binds [--direct-up-to L]]``
+anderson] | --accuracy [--coarse N] [--polish N ...] | --binds [--direct-up-to L]]``
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def reference_solution(level: int) -> np.ndarray:
     return np.load(path)
 
 
-def accuracy_case(level: int, coarse: int) -> None:
+def accuracy_case(level: int, coarse: int, polish: list[int]) -> None:
     """The deformer against the converged direct solve on one level: prints a table row per configuration."""
     from deformers.arap import ArapConfig
     from nerfedit_plugin.edit.spec import load_edit_spec
@@ -104,6 +104,7 @@ def accuracy_case(level: int, coarse: int) -> None:
         "defaults": ArapConfig(),
         "direct": ArapConfig(multiresolution="off"),
         f"multires {coarse}": ArapConfig(multiresolution="on", coarse_vertices=coarse),
+        **{f"defaults, polish {n}": ArapConfig(multiresolution="on", polish=n) for n in polish},
     }
     for name, config in configs.items():
         start = time.perf_counter()
@@ -254,6 +255,9 @@ def main() -> None:
     )
     parser.add_argument("--accuracy", action="store_true", help="against the converged direct solve (levels 0-2)")
     parser.add_argument("--coarse", type=int, default=10_000, help="with --accuracy: coarse vertices of the forced row")
+    parser.add_argument(
+        "--polish", type=int, nargs="*", default=[], help="with --accuracy: rows polished by these fine iterations"
+    )
     parser.add_argument("--binds", action="store_true", help="time the skeleton and cage binds")
     parser.add_argument("--direct-up-to", type=int, default=2, help="with --binds: the last level bound directly too")
     parser.add_argument("--bind-case", help=argparse.SUPPRESS)
@@ -275,7 +279,7 @@ def main() -> None:
         print("| vertices | config | path | coarse vertices | mean / diag | max / diag | folded | bind + deform s |")
         print("|" + "---|" * 8)
         for level in args.levels:
-            accuracy_case(level, args.coarse)
+            accuracy_case(level, args.coarse, args.polish)
         return
     if args.solver:
         print(

@@ -8,8 +8,9 @@ Every connected part of the mesh needs at least one handle vertex.
 Meshes of more than ``coarse_above`` vertices (60k by default) are solved by multiresolution
 (:mod:`nerfedit_plugin.geometry.multires`): exact ARAP on a vertex clustering of the surface of ``coarse_vertices``
 vertices, the fine surface carried as detail in the coarse solution's local frames, the handle vertices placed
-exactly. The coarse level and the binding are kept in the bind cache (:attr:`Deformer.bind_cache`), so the next edit
-of the same mesh reads them. ``report.json`` records the path taken under ``deformer_report``.
+exactly; ``polish`` N then runs N fine L-BFGS iterations from the carried surface. The coarse level and the binding
+are kept in the bind cache (:attr:`Deformer.bind_cache`), so the next edit of the same mesh reads them.
+``report.json`` records the path taken under ``deformer_report``.
 
 In the editor (:class:`ArapBackend`) the handles sit on mesh vertices; each preview re-solves with a solver
 prefactored for the handle vertices, warm-started, a few iterations, and :meth:`ArapBackend.converge` finishes that
@@ -67,9 +68,16 @@ class ArapConfig(DeformerConfig, CoarseOptions):
     increase the energy and cost one back-substitution per iteration. L-BFGS is as fast on small meshes and needs
     fewer iterations on large ones (from about 100k vertices), so within ``max_iterations`` it ends closer to the
     converged energy."""
+    polish: int = 0
+    """Multiresolution path only: after the fine surface is carried, this many L-BFGS iterations of ARAP on the fine
+    mesh itself, from the carried surface, its handle vertices exact (the fine system is factorised in ``bind``).
+    0 keeps the carried surface; as it grows the result approaches the direct solve's minimiser, which on a finely
+    subdivided mesh is softer (its bending stiffness falls like h² against its stretching) and can fold faces the
+    coarse solution does not."""
 
     def __post_init__(self) -> None:
         check_option(self, "max_iterations", self.max_iterations, self.max_iterations >= 1, ">= 1")
+        check_option(self, "polish", self.polish, self.polish >= 0, ">= 0")
         self.check_coarse_options()
         check_option(self, "tolerance", self.tolerance, 0 <= self.tolerance < float("inf"), "a number >= 0")
         check_option(self, "solver", self.solver, self.solver in ("lbfgs", "anderson"), "'lbfgs' or 'anderson'")
@@ -229,6 +237,9 @@ class ArapDeformer(Deformer):
             self.level, self.level_cached = cached_coarse_level(self.bind_cache, rest, config.coarse_vertices)
             self.on_progress(0, None, f"factorising the coarse level ({self.level.coarse.n_vertices} vertices)")
             self.multires = MultiresArap(self.level, rest, self.handles, energy=config.energy)
+            if config.polish:
+                self.on_progress(0, None, f"factorising the mesh for the polish ({rest.n_vertices} vertices)")
+                self.solver = ArapSolver(rest.vertices, rest.faces, energy=config.energy, fixed=self.handles)
         except NerfEditError as exc:
             raise NerfEditError(f"{edit.source}: handles: {exc}") from exc
         self.coarse_targets = self.multires.coarse_targets(self.targets)
@@ -256,6 +267,11 @@ class ArapDeformer(Deformer):
                 result = self.multires.solve(coarse_targets, initial=start, callback=span.iterations(), **options)
                 positions, gap = self.multires.surface(result.vertices, targets)
                 self.frame_reports.append(self._frame_report(result, gap / self.rest.bbox_diagonal))
+                if self.config.polish:
+                    polish = dict(options, max_iterations=self.config.polish, method="lbfgs")
+                    polished = self.solver.solve(targets, initial=positions, **polish)
+                    positions = polished.vertices
+                    self.frame_reports[-1]["polish"] = self._frame_report(polished)
             span.end(f"{result.iterations} iteration{'s' * (result.iterations != 1)}")
             self.results.append(result)
             frames.append(positions)
@@ -275,7 +291,8 @@ class ArapDeformer(Deformer):
         adds ``coarse`` (``vertices``, ``faces``, ``handles``: its fixed vertices, ``cached``: read from the bind
         cache), ``detail_mean`` / ``detail_max`` (distance of the fine vertices to the coarse surface) and per frame
         ``handle_gap`` (the largest distance of a carried handle vertex to its target before it is placed there),
-        distances relative to the rest bbox diagonal."""
+        distances relative to the rest bbox diagonal, and with ``polish`` the fine iterations' ``polish``
+        (``iterations``, ``energy`` of the fine mesh, ``converged``)."""
         report = {
             "path": "direct" if self.level is None else "multiresolution",
             "threshold_vertices": self.config.coarse_above,

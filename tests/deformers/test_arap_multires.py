@@ -121,6 +121,28 @@ def test_bent_bumpy_cylinder_stays_as_near_the_direct_solve_as_a_coarser_direct_
     assert np.abs(bumps(multires[0]) - rest).max() < 5e-4
 
 
+def test_polish_walks_the_carried_surface_to_the_direct_minimiser(cylinder):
+    """``polish`` N: N fine L-BFGS iterations from the carried surface: the fine energy falls monotonically in N, the
+    result nears the direct solve (the minimiser of the same energy), the handles stay exact; 0 is the carry."""
+    edit = bend(20, 0.05)
+    direct, direct_model = deform(cylinder, edit, multiresolution="off", tolerance=1e-10, max_iterations=2000)
+    handles, targets = edit.handle_targets(cylinder.vertices, cylinder.faces)
+    fine = ArapSolver(cylinder.vertices, cylinder.faces, fixed=handles)
+    carried, _ = deform(cylinder, edit, multiresolution="on", coarse_vertices=1500)
+    energies, errors = [fine.energy(carried[0])], [np.abs(carried[0] - direct[0]).max()]
+    for n in (5, 40):
+        polished, model = deform(cylinder, edit, multiresolution="on", coarse_vertices=1500, polish=n, tolerance=0)
+        assert np.array_equal(polished[0, handles], targets[0])
+        report = model.report()["per_frame"][0]["polish"]
+        assert report["iterations"] == n and report["energy"] == pytest.approx(fine.energy(polished[0]), rel=1e-9)
+        energies.append(fine.energy(polished[0]))
+        errors.append(np.abs(polished[0] - direct[0]).max())
+    assert energies[0] > energies[1] > energies[2] >= direct_model.results[0].energies[-1] * (1 - 1e-9)
+    assert errors[2] < 0.3 * errors[0], errors
+    unpolished, _ = deform(cylinder, edit, multiresolution="on", coarse_vertices=1500, polish=0)
+    assert np.array_equal(unpolished, carried)
+
+
 def rigid_motion() -> tuple[np.ndarray, np.ndarray, dict]:
     rotvec = np.array([0.3, -0.5, 0.8])
     rotation = Rotation.from_rotvec(rotvec).as_matrix()
