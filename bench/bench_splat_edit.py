@@ -49,7 +49,7 @@ from nerfedit_plugin.data.cameras import Cameras, look_at
 from nerfedit_plugin.fields.splats.deform import deform_model
 from nerfedit_plugin.fields.splats.field import SplatsField
 from nerfedit_plugin.fields.splats.files import write_ply
-from nerfedit_plugin.fields.splats.model import SH_C0, SplatModel, synthetic_model
+from nerfedit_plugin.fields.splats.model import surface_model, synthetic_model
 from nerfedit_plugin.geometry.tets import kuhn_grid, orient_tets
 from nerfedit_plugin.render.renderer import RenderConfig
 from nerfedit_plugin.render.views import turntable_cameras
@@ -77,24 +77,6 @@ class AnalyticMap:
         x = x.double()
         jacobian = torch.func.vmap(torch.func.jacrev(lambda p: bend(p[None], self.rate)[0]))(x)
         return DeformedPoints(bend(x, self.rate), torch.ones(len(x), dtype=torch.bool), jacobian)
-
-
-def surface_model(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> SplatModel:
-    """``n`` flat Gaussians on ``mesh``'s surface, their thin axis along the face normal."""
-    rng = np.random.default_rng(seed)
-    points, face = trimesh.sample.sample_surface(mesh, n, seed=seed)
-    normal = mesh.face_normals[face]
-    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    first = np.cross(normal, helper)
-    first /= np.linalg.norm(first, axis=1, keepdims=True)
-    axes = np.stack([first, np.cross(normal, first), normal], 2)  # columns: two tangents, the normal
-    from scipy.spatial.transform import Rotation
-
-    quats = Rotation.from_matrix(axes).as_quat()[:, [3, 0, 1, 2]]
-    sh = rng.normal(scale=0.08, size=(n, 16, 3))
-    sh[:, 0] = (rng.random((n, 3)) - 0.5) / SH_C0
-    log_scales = np.log(np.tile([0.02, 0.02, 0.002], (n, 1)))
-    return SplatModel(points, quats, log_scales, np.full(n, 2.5), sh).astype(np.float32)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
