@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from nerfedit_plugin.data.bounds import estimate_scene_bbox
-from nerfedit_plugin.data.cameras import Cameras
+from nerfedit_plugin.data.cameras import OPENCV_TO_OPENGL, Cameras
 from nerfedit_plugin.data.colmap import ColmapModel, is_workspace, read_colmap, sparse_folder
 from nerfedit_plugin.data.image_cache import cached
 from nerfedit_plugin.data.lens import DISTORTION, Lens
@@ -34,6 +34,9 @@ CAPTURE_KEYS = ("applied_transform", "ply_file_path")
 """A nerfstudio file with one of these keys is a capture (``ns-process-data`` output): it is normalised."""
 EVAL_INTERVAL = 8
 """nerfstudio's ``eval_interval``: every 8th frame of a file without split keys is held out."""
+INRIA_CAMERAS = "cameras.json"
+"""The INRIA 3D Gaussian Splatting trainer's cameras file, in its output folder beside ``point_cloud/``."""
+INRIA_KEYS = ("width", "height", "position", "rotation", "fx", "fy")
 
 
 # ---- images ----------------------------------------------------------------------------------------------------
@@ -127,13 +130,14 @@ class Transforms:
 
 def transforms_file(path: str | os.PathLike, split: str | None = None) -> Path:
     """The transforms JSON of ``path``: the file itself, or in a folder ``transforms_{split}.json``, else
-    ``transforms.json``."""
+    ``transforms.json``, else the INRIA trainer's ``cameras.json``."""
     path = Path(path)
     if path.is_file():
         return path
     if not path.is_dir():
         raise NerfEditError(f"{path}: dataset not found")
     candidates = ([path / f"transforms_{split}.json"] if split else []) + [path / "transforms.json"]
+    candidates.append(path / INRIA_CAMERAS)
     for candidate in candidates:
         if candidate.is_file():
             return candidate
@@ -143,9 +147,10 @@ def transforms_file(path: str | os.PathLike, split: str | None = None) -> Path:
 
 
 def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transforms:
-    """Parse a Blender or nerfstudio transforms file, or a COLMAP workspace (dataset folder); ``split`` selects
-    frames. Captures (COLMAP workspaces, nerfstudio files with ``applied_transform`` or ``ply_file_path``) are
-    normalised (:mod:`nerfedit_plugin.data.normalization`)."""
+    """Parse a Blender or nerfstudio transforms file, a COLMAP workspace (dataset folder) or the INRIA trainer's
+    ``cameras.json`` (:func:`inria_cameras`; it has no splits); ``split`` selects frames. Captures (COLMAP
+    workspaces, nerfstudio files with ``applied_transform`` or ``ply_file_path``) are normalised
+    (:mod:`nerfedit_plugin.data.normalization`)."""
     if split is not None and split not in SPLITS:
         raise NerfEditError(f"split: expected one of {', '.join(SPLITS)}, got {split!r}")
     file = transforms_file(path, split)
@@ -155,6 +160,8 @@ def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transf
         meta = json.loads(file.read_text())
     except (OSError, ValueError) as exc:  # ValueError: bad UTF-8, bad JSON, an integer of > 4300 digits
         raise NerfEditError(f"{file}: cannot read JSON ({exc})") from exc
+    if isinstance(meta, list) and meta and isinstance(meta[0], dict) and "position" in meta[0]:
+        return inria_cameras(file, meta)  # no splits: every camera
     if not isinstance(meta, dict):
         raise NerfEditError(f"{file}: expected a JSON object at the top level")
     frames = meta.get("frames")
@@ -193,6 +200,55 @@ def read_transforms(path: str | os.PathLike, split: str | None = None) -> Transf
         points = None
     chosen = _split_indices(file, meta, frames, split)
     return _select(Transforms(cameras, paths, file, meta, lenses, masks, points), chosen)
+
+
+def inria_cameras(file: Path, entries: list) -> Transforms:
+    """The cameras of the INRIA 3D Gaussian Splatting trainer's ``cameras.json``: a list of ``{"img_name", "width",
+    "height", "position", "rotation", "fx", "fy"}`` (optionally ``cx``, ``cy``; else the image centre), ``rotation``
+    and ``position`` the OpenCV camera-to-world rotation (rows) and centre → :class:`Transforms` of OpenGL cameras
+    (``[rotation | position] · diag(1, −1, −1, 1)``), image paths ``img_name`` beside the file."""
+    c2w, intrinsics, paths, size = [], [], [], None
+    for i, entry in enumerate(entries):
+        where = f"[{i}]."
+        if not isinstance(entry, dict):
+            raise NerfEditError(f"{file}: [{i}]: expected an object")
+        missing = [key for key in INRIA_KEYS if key not in entry]
+        if missing:
+            raise NerfEditError(f"{file}: {where}{missing[0]}: missing key (an INRIA cameras.json entry)")
+        frame_size = tuple(int(_number(file, entry, key, where)) for key in ("width", "height"))
+        if min(frame_size) <= 0:
+            raise NerfEditError(f"{file}: {where}width/height: expected positive sizes, got {list(frame_size)}")
+        if size is not None and frame_size != size:
+            raise NerfEditError(
+                f"{file}: {where}width/height: image size {frame_size[0]}x{frame_size[1]} differs from "
+                f"{size[0]}x{size[1]} of the first camera (mixed image sizes are not supported)"
+            )
+        size = frame_size
+        try:
+            rotation = np.asarray(entry["rotation"], dtype=np.float64)
+            position = np.asarray(entry["position"], dtype=np.float64)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise NerfEditError(f"{file}: {where}rotation/position: expected numbers ({exc})") from exc
+        if rotation.shape != (3, 3) or position.shape != (3,):
+            raise NerfEditError(
+                f"{file}: {where}rotation/position: expected a 3x3 matrix and 3 numbers, got shapes "
+                f"{rotation.shape} and {position.shape}"
+            )
+        if not (np.isfinite(rotation).all() and np.isfinite(position).all()):
+            raise NerfEditError(f"{file}: {where}rotation/position: contains NaN or Inf")
+        if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-3):
+            raise NerfEditError(f"{file}: {where}rotation: not orthonormal")
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rotation, position
+        c2w.append(pose @ OPENCV_TO_OPENGL)
+        focal = [_number(file, entry, key, where) for key in ("fx", "fy")]
+        centre = [_number(file, entry, k, where) if k in entry else 0.5 * n for k, n in zip(("cx", "cy"), size)]
+        intrinsics.append((*focal, *centre))
+        name = entry.get("img_name", f"{i:05d}")
+        paths.append(file.parent / str(name))
+    fx, fy, cx, cy = torch.tensor(intrinsics, dtype=torch.float32).T
+    cameras = Cameras(torch.from_numpy(np.stack(c2w)), fx, fy, cx, cy, *size)
+    return Transforms(cameras, paths, file, {"cameras": "inria"})
 
 
 def is_capture(transforms: Transforms) -> bool:
