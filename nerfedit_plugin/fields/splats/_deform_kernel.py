@@ -218,7 +218,7 @@ def tet_tables(chosen, used, tets, rest_inverse, regular, deformed, single, grad
 
 @numba.njit(cache=True)
 def _scratch():
-    """float64 scratch of :func:`_move_one`: six 3×3 matrices and a quaternion."""
+    """float64 scratch of :func:`_move_one`: six 3×3 matrices, a quaternion and one SH band's coefficients."""
     return (
         np.empty((3, 3)),
         np.empty((3, 3)),
@@ -227,6 +227,7 @@ def _scratch():
         np.empty((3, 3)),
         np.empty((3, 3)),
         np.empty(4),
+        np.empty((7, 3)),
     )
 
 
@@ -290,17 +291,21 @@ def _eigen(a00, a11, a22, a01, a02, a12, vectors):
 
 
 @numba.njit(cache=True, inline="always")
-def _rotate_band(record, offset, size, first, sh, sh_out):
+def _rotate_band(record, offset, size, first, sh, sh_out, coefficients):
     """``sh_out[first:first+size] = M sh[first:first+size]`` per channel (float64 sums), ``M`` the ``size × size``
-    matrix at ``record[offset:]``."""
+    matrix at ``record[offset:]``; ``coefficients`` (≥ size × 3 float64) holds the band's input, read once."""
+    for b in range(size):
+        coefficients[b, 0] = sh[first + b, 0]
+        coefficients[b, 1] = sh[first + b, 1]
+        coefficients[b, 2] = sh[first + b, 2]
     for a in range(size):
         t0, t1, t2 = 0.0, 0.0, 0.0
         row = offset + a * size
         for b in range(size):
             m = record[row + b]
-            t0 += m * np.float64(sh[first + b, 0])
-            t1 += m * np.float64(sh[first + b, 1])
-            t2 += m * np.float64(sh[first + b, 2])
+            t0 += m * coefficients[b, 0]
+            t1 += m * coefficients[b, 1]
+            t2 += m * coefficients[b, 2]
         sh_out[first + a, 0], sh_out[first + a, 1], sh_out[first + a, 2] = t0, t1, t2
 
 
@@ -309,7 +314,7 @@ def _move_one(q, log_scale, sh, record, quat_out, log_scale_out, sh_out, work):
     """One Gaussian (its rows ``q (4,)``, ``log_scale (3,)``, ``sh (K,3)``, any float dtype) carried by its
     gradient's ``record`` (:func:`piece_tables`): the new quaternion, log-scales and SH bands written to the
     ``*_out`` rows (distinct from the input rows); returns its anisotropy growth. ``work``: :func:`_scratch`."""
-    axes, local, tmp, covariance, vectors, nearest, out = work
+    axes, local, tmp, covariance, vectors, nearest, out, coefficients = work
     q0, q1, q2, q3 = np.float64(q[0]), np.float64(q[1]), np.float64(q[2]), np.float64(q[3])
     norm = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     w, x, y, z = q0 / norm, q1 / norm, q2 / norm, q3 / norm
@@ -385,11 +390,11 @@ def _move_one(q, log_scale, sh, record, quat_out, log_scale_out, sh_out, work):
     count = sh.shape[0]
     sh_out[0, 0], sh_out[0, 1], sh_out[0, 2] = sh[0, 0], sh[0, 1], sh[0, 2]
     if count >= 4:
-        _rotate_band(record, WIGNER1, 3, 1, sh, sh_out)
+        _rotate_band(record, WIGNER1, 3, 1, sh, sh_out, coefficients)
     if count >= 9:
-        _rotate_band(record, WIGNER2, 5, 4, sh, sh_out)
+        _rotate_band(record, WIGNER2, 5, 4, sh, sh_out, coefficients)
     if count >= 16:
-        _rotate_band(record, WIGNER3, 7, 9, sh, sh_out)
+        _rotate_band(record, WIGNER3, 7, 9, sh, sh_out, coefficients)
     return growth
 
 
