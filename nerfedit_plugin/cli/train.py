@@ -33,6 +33,10 @@ class TrainArgs:
     sparse points or camera frustums); the mesh is extracted inside it."""
     frame: Literal["world", "capture"] = "world"
     """Frame of --scene-box: the run's (normalised) world, or the capture's own coordinates (e.g. COLMAP's)."""
+    dataparser_transforms: Path | None = None
+    """With a model file: nerfstudio's dataparser_transforms.json of the run it was exported from (ns-export keeps
+    the Gaussians in nerfstudio's normalised frame); recorded as the run's capture frame, so cameras in the dataset's
+    coordinates render through `render --frame-of-cameras capture`, and `extract --frame capture` maps back."""
 
     def __post_init__(self) -> None:
         check_option(self, "downscale", self.downscale, self.downscale >= 1, "a positive integer")
@@ -52,6 +56,7 @@ def train(args: TrainArgs) -> None:
         downscale=args.downscale,
         scene_box=args.scene_box,
         box_frame=args.frame,
+        dataparser=args.dataparser_transforms,
     )
     evals = log.get("eval") or []
     print_table(

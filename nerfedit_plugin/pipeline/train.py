@@ -37,6 +37,7 @@ from nerfedit_plugin.pipeline.run import (
     default_device,
     is_model_file,
     open_run,
+    read_dataparser_transforms,
 )
 from nerfedit_plugin.quality import training_warnings
 from nerfedit_plugin.registry import FIELDS, Registry, discover
@@ -90,13 +91,15 @@ def train_run(
     downscale: int = 1,
     scene_box=None,
     box_frame: str = "world",
+    dataparser: str | os.PathLike | None = None,
 ) -> tuple[Run, dict]:
     """Build (``data`` = a model file: :meth:`Field.from_file`) or train (``data`` = dataset folder, transforms file or
     COLMAP workspace: :meth:`Field.fit`) the field ``backend`` with ``config`` and write the run folder ``out``
     atomically, with ``mesh.ply`` for exact-mesh fields and ``dataparser_transforms.json`` for normalised captures.
     Images are downscaled by ``downscale``; ``scene_box`` (6 numbers, in ``box_frame``: ``world`` or ``capture``)
-    overrides the dataset's box. ``record`` (the command line's args) goes to config.yml under ``command``. Returns the
-    run and the training log."""
+    overrides the dataset's box. ``dataparser`` (a model file only): nerfstudio's ``dataparser_transforms.json`` of
+    the run the model was exported from, recorded as the run's capture frame. ``record`` (the command line's args)
+    goes to config.yml under ``command``. Returns the run and the training log."""
     registry = discover() if registry is None else registry
     if registry.config_class(FIELDS, backend) is not type(config):
         raise NerfEditError(f"field: the config {type(config).__name__} is not the {backend!r} backend's")
@@ -104,6 +107,13 @@ def train_run(
     target = config._target
     device = torch.device(device) if device is not None else default_device()
     source = run_source(backend, target, data)
+    if dataparser is not None:
+        if source != "model":
+            raise NerfEditError(
+                f"--dataparser-transforms: {data} is a dataset; it applies to a model file (a dataset's own "
+                "normalisation is recorded from it)"
+            )
+        capture = read_dataparser_transforms(Path(dataparser))
     plain = {
         "field": backend,
         "data": os.path.relpath(data, Path(out).resolve()),
@@ -115,6 +125,8 @@ def train_run(
     with atomic_dir(out, overwrite, keep_partial=True) as stage:
         if source == "model":
             field, log = target.from_file(data, config).to(device), {}
+            if dataparser is not None:
+                (stage / DATAPARSER).write_text(json.dumps(dataparser_transforms(capture), indent=2))
             if target.exact_mesh:
                 field.extract_mesh().save(stage / MESH)
         else:

@@ -97,3 +97,57 @@ def test_an_empty_field_says_so():
     camera = Cameras.from_fov(look_at(torch.tensor([[2.0, 0, 0]]), torch.zeros(1, 3)), 8, 8, math.radians(40))
     with pytest.raises(Exception, match="no Gaussians loaded"):
         field.render(camera, 0, RenderConfig())
+
+
+def test_a_nerfstudio_export_with_its_dataparser_transforms_renders_from_the_dataset_cameras(tmp_path, capsys):
+    """ns-export keeps the Gaussians in nerfstudio's normalised frame ``x ↦ s(Rx + t)``: with its
+    dataparser_transforms.json the run renders cameras of the dataset's own frame (``--frame-of-cameras capture``) as
+    the model in that frame renders them (a pinhole image is unchanged when scene and camera are scaled together)."""
+    model = synthetic_model(500, 0, seed=4)
+    rotation = Rotation.from_rotvec([0.3, -0.2, 0.9]).as_matrix()
+    scale, shift = 0.4, np.array([0.2, -0.1, 0.05])
+    normalised = SplatModel(
+        scale * (model.means @ rotation.T + shift),
+        np.concatenate([Rotation.from_matrix(rotation).as_quat()[None, [3, 0, 1, 2]]] * len(model)),
+        model.log_scales + np.log(scale),
+        model.opacities,
+        model.sh,
+    )
+    normalised = SplatModel(
+        normalised.means,
+        (
+            Rotation.from_quat(normalised.quats[:, [1, 2, 3, 0]]) * Rotation.from_quat(model.quats[:, [1, 2, 3, 0]])
+        ).as_quat()[:, [3, 0, 1, 2]],
+        *normalised.arrays()[2:],
+    ).astype(np.float32)
+    write_ply(model, tmp_path / "data_frame.ply")
+    write_ply(normalised, tmp_path / "splat.ply")
+    record = {"transform": np.column_stack([rotation, shift]).tolist(), "scale": scale}
+    (tmp_path / "dataparser_transforms.json").write_text(json.dumps(record))
+    train = ["train", "--field", "splats", "--data"]
+    main([*train, str(tmp_path / "data_frame.ply"), "--out", str(tmp_path / "plain")])
+    dataparser = ["--dataparser-transforms", str(tmp_path / "dataparser_transforms.json")]
+    main([*train, str(tmp_path / "splat.ply"), "--out", str(tmp_path / "export"), *dataparser])
+    assert np.allclose(open_run(tmp_path / "export").source_transform()[:3], scale * np.column_stack([rotation, shift]))
+    c2w = look_at(torch.tensor([[2.0, 1.0, 1.0], [-1.5, 1.5, 0.5]]), torch.zeros(2, 3))
+    _transforms(tmp_path / "transforms.json", c2w, 32, 0.8)
+    cameras = ["--cameras", str(tmp_path / "transforms.json")]
+    main(["render", "--run", str(tmp_path / "plain"), *cameras, "--out", str(tmp_path / "a")])
+    main(
+        [
+            "render",
+            "--run",
+            str(tmp_path / "export"),
+            *cameras,
+            "--frame-of-cameras",
+            "capture",
+            "--out",
+            str(tmp_path / "b"),
+        ]
+    )
+    for i in range(2):
+        a, b = (iio.imread(tmp_path / d / f"r_{i}.png").astype(np.int16) for d in ("a", "b"))
+        assert np.abs(a - b).max() <= 2, np.abs(a - b).max()
+    assert main([*train, str(tmp_path / "transforms.json"), "--out", str(tmp_path / "bad"), *dataparser]) != 0
+    assert not (tmp_path / "bad").exists()
+    assert "--dataparser-transforms" in capsys.readouterr().err
