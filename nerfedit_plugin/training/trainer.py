@@ -6,8 +6,9 @@ plus an optional backend regulariser. Every learning rate decays exponentially w
 ``p = max(step / max_steps, seconds / max_seconds)`` (or ``min(1, max(p, step / lr_decay_steps))``):
 ``lr(p) = lr₀ · lr_final_factor^p``. Evaluation (PSNR over
 whole held-out images) runs every ``eval_every_seconds`` of training time and is excluded from the clock, so the
-log's ``(seconds, psnr)`` pairs are a PSNR-vs-training-time curve. The clock is wall time, or on a busy machine the
-CPU time of the training thread (``TrainerConfig.clock``), which does not grow with other processes' load.
+log's ``(seconds, psnr)`` pairs are a PSNR-vs-training-time curve. The clock is wall time, or the CPU time of the
+whole process (``TrainerConfig.clock``: every thread, torch's and numba's workers included), which does not grow
+with other processes' load and counts the same work the same for every backend.
 Inside :func:`checkpoints` the loop hands the field to a callback every ``checkpoint_every_seconds`` (``nerfedit
 train`` keeps the last one as a partial run when it is interrupted).
 """
@@ -35,10 +36,10 @@ class TrainerConfig:
     max_seconds: float = 270.0
     """Training budget in seconds of ``clock`` (evaluation time excluded)."""
     clock: Literal["wall", "cpu"] = "wall"
-    """How training time is measured: ``wall`` — wall-clock seconds; ``cpu`` — CPU seconds of the training thread,
-    which runs every serial section and its share of each parallel one (torch's intra-op workers take the rest): an
-    estimate of the wall time on idle cores, for budgets and PSNR-vs-time curves on a busy machine (waiting for
-    descheduled workers makes it overestimate)."""
+    """How training time is measured: ``wall`` — wall-clock seconds; ``cpu`` — CPU seconds of the whole process, every
+    thread's (torch's intra-op and numba's workers included): the compute a run used, the same for every backend and
+    whatever the machine's other load, for budgets and PSNR-vs-time curves on a busy machine. A run on ``n`` busy
+    threads spends it ``n`` times as fast as wall time; workers that spin while they wait count too."""
     max_steps: int = 1_000_000
     """Step budget; training stops at whichever budget runs out first."""
     batch_rays: int = 4096
@@ -230,7 +231,7 @@ def _clock(kind: str) -> Callable[[], float]:
     if kind == "wall":
         return time.perf_counter
     if kind == "cpu":
-        return time.thread_time
+        return time.process_time
     raise ValueError(f"TrainerConfig.clock: expected 'wall' or 'cpu', got {kind!r}")
 
 
