@@ -4,7 +4,7 @@ Subject (``bench/articulated.py``): a generated stick figure with a ground-truth
 pose (every limb bent 30–60° at every joint). Ground truth: the subject's own mesh posed by the rig (the ``skeleton``
 deformer: bone-heat weights, dual quaternions) and rendered exactly from the test cameras. Pipeline, as a user of
 the paper's Blender workflow would run it: generate the dataset → train ``neus`` (defaults, the 270 s budget counted in
-CPU seconds of the training thread so that other load on the machine does not shorten it; ``--tiny``: the exact
+CPU seconds of the process so that other load on the machine does not shorten it; ``--tiny``: the exact
 ``mesh`` field) → extract its mesh → pose the extracted mesh with the same rig (same bones; each vertex takes the
 skin weights of its closest subject-surface point) → ``--deformer mesh`` edit with each lift → render the test
 views through the bent rays → PSNR / SSIM / LPIPS against the ground truth.

@@ -76,8 +76,8 @@ def main() -> None:
         "--clock",
         choices=("wall", "cpu"),
         default="wall",
-        help="wall-clock seconds, or CPU seconds of the training thread (≈ idle-machine wall time; "
-        "use on a busy machine, see TrainerConfig.clock)",
+        help="wall-clock seconds, or CPU seconds of the whole process (every thread; use on a busy machine, see "
+        "TrainerConfig.clock)",
     )
     args = parser.parse_args()
     seconds = args.seconds or (60.0 if args.quick else 300.0)
