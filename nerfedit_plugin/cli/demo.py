@@ -18,8 +18,9 @@ class DemoArgs:
     """Output folder (dataset, run, edit, renders, summary.json, config.yml)."""
     preset: Literal["fast", "tiny"] = "fast"
     """fast: 100×100 images, 50 views, 150 s of training (minutes end to end on a CPU); tiny: seconds (tests)."""
-    field: Literal["nerf", "neus"] = "neus"
-    """Field backend to train (neus: an SDF, whose zero level set gives the cleanest mesh to edit)."""
+    field: Literal["nerf", "neus", "splats"] = "neus"
+    """Field backend to train (neus: an SDF, whose zero level set gives the cleanest mesh to edit; splats: 3D
+    Gaussians, their mesh fused from their rendered depth)."""
     overwrite: bool = False
     """Replace an existing output folder (only after the new one is complete)."""
 

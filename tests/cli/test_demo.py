@@ -41,3 +41,20 @@ def test_tiny_demo_runs_every_stage(tmp_path, capsys):
     assert abs(after_psnr - before_psnr) < 1.5, (before_psnr, after_psnr)
     rerun = parse(command("demo"), ["--load-config", str(out / "config.yml"), "--out", str(tmp_path / "again")])
     assert (rerun.preset, rerun.field, rerun.out) == ("tiny", "neus", tmp_path / "again")  # config.yml records the args
+
+
+def test_tiny_demo_with_splats(tmp_path):
+    """``nerfedit demo --field splats``: the Gaussians train, their mesh is fused from their depth and edited, and the
+    edited render (the Gaussians moved by the forward map) scores as the unedited one against its ground truth."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--preset", "tiny", "--field", "splats", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for path in summary["files"].values():
+        assert (out / path).exists(), path
+    assert len(SurfaceMesh.load(out / "run" / "mesh.ply").faces) > 100
+    before, _ = read_image(out / "renders" / "before" / "r_0.png")
+    after, _ = read_image(out / "renders" / "after" / "r_0.png")
+    assert np.abs(before - after).max() > 0.1  # the edit shows in the render
+    # measured on an idle machine: 23.4 dB before, 24.1 dB after (406 steps in the preset's 5 s); all background ~10.8
+    before_psnr, after_psnr = summary["before"]["psnr"], summary["after"]["psnr"]
+    assert before_psnr > 16.0 and abs(after_psnr - before_psnr) < 1.5, (before_psnr, after_psnr)

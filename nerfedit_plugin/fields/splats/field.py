@@ -73,6 +73,15 @@ class SplatsConfig(FieldConfig):
             check_option(self, "split_growth", self.split_growth, 1 <= self.split_growth < math.inf, "a number >= 1")
         check_trainer_config(self, self.train, "train.")
 
+    @classmethod
+    def tiny(cls, seconds: float = 5.0, **overrides: Any) -> SplatsConfig:
+        """A small, fast preset for tests and smoke runs: ``seconds`` of training from 2000 Gaussians (500 far),
+        density control every 50 steps up to 10k Gaussians, no progress bar."""
+        recipe = SplatRecipe(
+            init_gaussians=2000, far_gaussians=500, densify_from=50, densify_every=50, max_gaussians=10_000
+        )
+        return cls(**{"recipe": recipe, "train": TrainerConfig.tiny(seconds), **overrides})
+
 
 class SplatsField(Field):
     """``N`` Gaussians as parameters ``means (N,3)``, ``quats (N,4)`` (w x y z), ``log_scales (N,3)``, ``opacities
