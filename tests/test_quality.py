@@ -52,12 +52,12 @@ def test_training_bound_is_the_last_held_out_psnr():
 def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch, capsys):
     """The top half of the capsule mirrored through z = 0 (given as the deformed mesh): its faces fold, and they lie
     on the bottom half's (the surface passes through itself). The inversion-free lift on the proxy as built
-    (``--lift-options.refine-rounds 0``) keeps every tet positive and so misses that surface: the warnings are the
-    folded and the crossing faces. The soft-ARAP lift alone (``--lift-options.no-injective``) follows it by
-    inverting tets: the warnings are the inverted tets, the folded faces and, where its refined lift still misses the
-    target, the crossing faces. (The default lift may fit it within the target by flattening tets to slivers: then
-    the crossing faces are not looked for.) The edit is written either way, and report.json holds the same
-    messages."""
+    (``--lift-options.refine-rounds 0``) keeps every tet positive and so, on most proxies pytetwild builds, misses
+    that surface: the warnings are the folded and the crossing faces. The soft-ARAP lift alone
+    (``--lift-options.no-injective``) follows it by inverting tets: the warnings are the inverted tets, the folded
+    faces and, where its refined lift still misses the target, the crossing faces. (A lift may fit it within the
+    target by flattening tets to slivers: then the crossing faces are not looked for.) The edit is written either
+    way, and report.json holds the same messages."""
     monkeypatch.setenv("NERFEDIT_CACHE", str(tmp_path / "cache"))
     capsule.save(tmp_path / "rest.ply")
     mirrored = capsule.vertices.copy()
@@ -74,8 +74,7 @@ def test_a_folding_edit_warns_once_and_records_it(capsule, tmp_path, monkeypatch
         err = capsys.readouterr().err.splitlines()
         written = json.loads((tmp_path / name / "report.json").read_text())
         frame = written["per_frame"][0]
-        missed = frame["residual_max"] > 2e-3
-        assert missed or name == "arap"
+        missed = frame["residual_max"] > 2e-3  # usually, not always: the proxy's tets are built in parallel
         words = ["inverted"] * (name == "arap") + ["fold"] + ["pass through"] * missed
         assert written["warnings"] == edit_warnings(written) and len(written["warnings"]) == len(words)
         assert err == [f"warning: {message}" for message in written["warnings"]]
