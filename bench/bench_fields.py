@@ -343,7 +343,8 @@ def main() -> None:
         loads = [r["load"] for r in rows]
         write_docs(
             f"`python bench/bench_fields.py --clock {args.clock} --out OUT` (rows finished by {finished}, "
-            f"{args.clock} clock, load average 1-min at the end of each row {min(loads):.1f}–{max(loads):.1f}): "
+            f"{'process CPU' if args.clock == 'cpu' else 'wall'} clock, load average 1-min at the end of each row "
+            f"{min(loads):.1f}–{max(loads):.1f}): "
             f"every field with its default config, budget {BUDGET:.0f} s of training per field (evaluation "
             f"excluded), 2 threads. Targets: objects nerf ≥ {TARGETS['nerf']:.0f} dB, neus ≥ "
             f"{TARGETS['neus']:.0f} dB and neus Chamfer ≤ {CHAMFER_TARGET} % of the bbox diagonal; scenes ≥ "
