@@ -54,7 +54,13 @@ def test_an_earlier_edit_renders_as_it_did(earlier):
 def test_an_earlier_edit_reruns_from_its_config_and_is_edited_again(earlier):
     config = str(earlier / "edit" / "config.yml")
     assert main(["edit", "--load-config", config, "--proxy-from", str(earlier / "edit"), "--out", "rerun"]) == 0
-    assert Path("rerun/deformation.npz").read_bytes() == (earlier / "edit" / "deformation.npz").read_bytes()
+    rerun, written = np.load("rerun/deformation.npz"), np.load(earlier / "edit" / "deformation.npz")
+    assert sorted(rerun.files) == sorted(written.files)
+    for name in ("format_version", "rest_vertices", "tets"):  # the same proxy, bit for bit
+        assert np.array_equal(rerun[name], written[name]), name
+    # the same solve: the fixture was written on another machine, and a solve's last bits follow the CPU's kernels
+    size = np.ptp(written["rest_vertices"], axis=0).max()
+    assert np.abs(rerun["deformed_vertices"] - written["deformed_vertices"]).max() <= 1e-10 * size
     more = ["--edit", str(earlier / "edit.json"), "--out", "more"]
     assert main(["edit", "--run", str(earlier / "run"), "--base", str(earlier / "edit"), *more]) == 0
     assert EditFolder.open(Path("more")).run == earlier / "run"
