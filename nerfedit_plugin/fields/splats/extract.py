@@ -1,4 +1,4 @@
-r"""A mesh of Gaussian splats: TSDF fusion of their rendered depth (Open3D's ``ScalableTSDFVolume``).
+r"""A mesh of Gaussian splats: TSDF fusion of their rendered depth (Open3D's ``VoxelBlockGrid``).
 
 Cameras: :data:`VIEWS` on a Fibonacci sphere (:func:`~nerfedit_plugin.data.cameras.sphere_poses`) of radius the box
 diagonal ``D`` around the box centre, looking at it, a :data:`FOV_DEGREES` field of view, ``2 × resolution`` pixels
@@ -80,7 +80,7 @@ def fuse_mesh(
     grid = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"),
         attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
-        attr_channels=((1), (1), (3)),
+        attr_channels=(1, 1, 3),
         voxel_size=voxel,
         block_resolution=8,
         block_count=BLOCKS,
